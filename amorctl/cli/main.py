@@ -1,0 +1,74 @@
+"""The ``amorctl`` entry point: builds the typer app and turns AmorError into one line + exit code."""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Annotated
+
+import typer
+
+from amorctl import __version__
+from amorctl.cli import characters, plugins
+from amorctl.errors import AmorError
+
+app = typer.Typer(
+    name="amorctl",
+    help="Adaptive character control through multi-objective RL (AMOR): train one policy for every "
+    "trade-off between tracking objectives, then choose, tune or schedule the trade-off.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+app.command("plugins")(plugins.plugins)
+app.add_typer(characters.app, name="characters")
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"amorctl {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """amorctl: AMOR motion-tracking policies from the command line."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero."""
+    try:
+        rv = app(args=argv, standalone_mode=False)
+    except AmorError as err:
+        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        return err.exit_code
+    except typer.Exit as exit_:
+        return exit_.exit_code
+    except typer.Abort:
+        print("aborted", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # click usage errors and anything unexpected
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return exc.exit_code
+        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
+              file=sys.stderr)
+        return 1
+    return rv if isinstance(rv, int) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

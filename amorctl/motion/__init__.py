@@ -1,0 +1,1 @@
+"""Motion data: importers, retargeting, frames, the motion VAE and the MCAP dataset."""

@@ -1,0 +1,230 @@
+"""The plugin registry: pluggy hookspecs, entry-point loading, lookup by name.
+
+Every plugin, built-in or third-party, is a module named by an entry point in the ``amorctl``
+group. It implements one or more of the hooks below; each hook receives a ``register`` callback
+and calls it once per thing it provides (register-callback style, as in ``llm``).
+
+Environment variables:
+    AMORCTL_BLOCK_PLUGINS  comma-separated entry-point names (or distribution names) not to load.
+    AMORCTL_TRACE_HOOKS    if set to 1, every hook call and registration is traced on stderr.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from importlib.metadata import EntryPoint, entry_points
+from types import ModuleType
+from typing import Any
+
+import pluggy
+
+from amorctl.errors import AmorError
+from amorctl.specs import BackendSpec, CharacterSpec, ObjectiveSetSpec
+
+PROJECT = "amorctl"
+ENTRY_POINT_GROUP = "amorctl"
+BLOCK_ENV = "AMORCTL_BLOCK_PLUGINS"
+TRACE_ENV = "AMORCTL_TRACE_HOOKS"
+
+hookspec = pluggy.HookspecMarker(PROJECT)
+hookimpl = pluggy.HookimplMarker(PROJECT)
+
+
+class HookSpecs:
+    """One hook per plugin kind."""
+
+    @hookspec
+    def amorctl_register_characters(self, register: Callable[[CharacterSpec], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`CharacterSpec` this plugin provides."""
+
+    @hookspec
+    def amorctl_register_objective_sets(self, register: Callable[[ObjectiveSetSpec], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`ObjectiveSetSpec` this plugin provides."""
+
+    @hookspec
+    def amorctl_register_backends(self, register: Callable[[BackendSpec], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`BackendSpec` this plugin provides."""
+
+
+#: plugin kind -> (hook name, spec type)
+KINDS: dict[str, tuple[str, type]] = {
+    "character": ("amorctl_register_characters", CharacterSpec),
+    "objective-set": ("amorctl_register_objective_sets", ObjectiveSetSpec),
+    "backend": ("amorctl_register_backends", BackendSpec),
+}
+
+
+@dataclass(frozen=True)
+class Provided:
+    """One registered thing: a row of ``amorctl plugins``."""
+
+    name: str
+    kind: str
+    package: str
+    version: str
+    plugin: str  # the entry-point (plugin module) name
+
+
+@dataclass(frozen=True)
+class PluginProblem:
+    """A plugin that did not load: blocked by the user, or broken."""
+
+    plugin: str
+    package: str
+    version: str
+    status: str  # "blocked" | "broken"
+    error: str = ""
+
+
+@dataclass
+class Registry:
+    """Everything the installed plugins registered, by kind and name."""
+
+    items: dict[str, dict[str, Any]] = field(default_factory=lambda: {k: {} for k in KINDS})
+    provided: list[Provided] = field(default_factory=list)
+    problems: list[PluginProblem] = field(default_factory=list)
+
+    def names(self, kind: str) -> list[str]:
+        return sorted(self.items[kind])
+
+    def get(self, kind: str, name: str) -> Any:
+        """The spec of one registered thing; unknown names raise :class:`AmorError`."""
+        try:
+            return self.items[kind][name]
+        except KeyError:
+            installed = ", ".join(self.names(kind)) or "none"
+            raise AmorError(f"unknown {kind} {name!r} (installed: {installed})") from None
+
+    def character(self, name: str) -> CharacterSpec:
+        return self.get("character", name)
+
+    def objective_set(self, name: str) -> ObjectiveSetSpec:
+        return self.get("objective-set", name)
+
+    def backend(self, name: str) -> BackendSpec:
+        return self.get("backend", name)
+
+
+def _blocked_names() -> set[str]:
+    return {n.strip() for n in os.environ.get(BLOCK_ENV, "").split(",") if n.strip()}
+
+
+def _dist_of(ep: EntryPoint) -> tuple[str, str]:
+    dist = getattr(ep, "dist", None)
+    if dist is None:
+        return ("unknown", "")
+    return (dist.metadata["Name"] or "unknown", dist.version or "")
+
+
+def _trace(message: str) -> None:
+    if os.environ.get(TRACE_ENV, "") not in ("", "0"):
+        print(f"[amorctl hooks] {message}", file=sys.stderr)
+
+
+def load_registry(
+    eps: Iterable[EntryPoint] | None = None,
+    extra_plugins: Iterable[tuple[str, ModuleType | object, str, str]] = (),
+) -> Registry:
+    """Load plugins and collect what they register.
+
+    Args:
+        eps: entry points to load; defaults to the installed ``amorctl`` group.
+        extra_plugins: (plugin name, module-or-object, package, version) registered directly,
+            used by tests to add fake plugins.
+
+    Raises:
+        AmorError: two plugins register the same name for one kind.
+    """
+    pm = pluggy.PluginManager(PROJECT)
+    pm.add_hookspecs(HookSpecs)
+    if os.environ.get(TRACE_ENV, "") not in ("", "0"):
+        pm.trace.root.setwriter(lambda msg: print(f"[amorctl hooks] {msg}", end="", file=sys.stderr))
+        pm.enable_tracing()
+
+    registry = Registry()
+    blocked = _blocked_names()
+    origin: dict[str, tuple[str, str]] = {}  # plugin name -> (package, version)
+    loaded: list[tuple[str, object]] = []
+
+    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP) if eps is None else eps, key=lambda e: e.name):
+        package, version = _dist_of(ep)
+        if ep.name in blocked or package in blocked:
+            registry.problems.append(PluginProblem(ep.name, package, version, "blocked"))
+            _trace(f"blocked plugin {ep.name!r} from {package}")
+            continue
+        try:
+            module = ep.load()
+        except Exception as exc:  # a broken plugin must not take the others down
+            registry.problems.append(
+                PluginProblem(ep.name, package, version, "broken", f"{type(exc).__name__}: {exc}")
+            )
+            _trace(f"plugin {ep.name!r} from {package} failed to import: {exc}")
+            continue
+        origin[ep.name] = (package, version)
+        loaded.append((ep.name, module))
+    for name, obj, package, version in extra_plugins:
+        origin[name] = (package, version)
+        loaded.append((name, obj))
+
+    for name, obj in loaded:
+        if pm.has_plugin(name) or pm.is_registered(obj):
+            continue  # the same module named by two entry points registers once
+        pm.register(obj, name=name)
+    pm.check_pending()
+
+    for kind, (hook_name, spec_type) in KINDS.items():
+        for name, obj in loaded:
+            if not pm.is_registered(obj) or pm.get_name(obj) != name:
+                continue
+            others = [p for p in pm.get_plugins() if p is not obj]
+            caller = pm.subset_hook_caller(hook_name, remove_plugins=others)
+            package, version = origin[name]
+            try:
+                caller(register=_registrar(registry, kind, spec_type, name, package, version))
+            except AmorError:
+                raise
+            except Exception as exc:
+                registry.problems.append(
+                    PluginProblem(name, package, version, "broken", f"{type(exc).__name__}: {exc}")
+                )
+    return registry
+
+
+def _registrar(
+    registry: Registry, kind: str, spec_type: type, plugin: str, package: str, version: str
+) -> Callable[[Any], None]:
+    def register(spec: Any) -> None:
+        if not isinstance(spec, spec_type):
+            raise TypeError(f"{kind} plugins must register {spec_type.__name__}, got {type(spec).__name__}")
+        existing = registry.items[kind].get(spec.name)
+        if existing is not None:
+            first = next(p for p in registry.provided if p.kind == kind and p.name == spec.name)
+            raise AmorError(
+                f"duplicate {kind} {spec.name!r}: registered by package {first.package!r} "
+                f"(plugin {first.plugin!r}) and by package {package!r} (plugin {plugin!r})"
+            )
+        registry.items[kind][spec.name] = spec
+        registry.provided.append(Provided(spec.name, kind, package, version, plugin))
+        _trace(f"{plugin} ({package}) registered {kind} {spec.name!r}")
+
+    return register
+
+
+_CACHED: Registry | None = None
+
+
+def get_registry() -> Registry:
+    """The registry of installed plugins, loaded once per process."""
+    global _CACHED
+    if _CACHED is None:
+        _CACHED = load_registry()
+    return _CACHED
+
+
+def reset_registry() -> None:
+    """Forget the cached registry (tests change the environment between loads)."""
+    global _CACHED
+    _CACHED = None

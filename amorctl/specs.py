@@ -1,0 +1,126 @@
+"""What plugins provide: character specs, objective sets and backends.
+
+These are plain frozen dataclasses (and one protocol) so that plugins stay declarative and the
+registry can describe them without running anything. Angles are radians, lengths metres,
+torques N·m, rates Hz.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Protocol, runtime_checkable
+
+JointGroup = Literal["upper", "lower", "feet"]
+JOINT_GROUPS: tuple[JointGroup, ...] = ("upper", "lower", "feet")
+
+#: Canonical key points that motion retargeting matches between a source skeleton and a character.
+KEYPOINTS: tuple[str, ...] = ("root", "head", "left_hand", "right_hand", "left_foot", "right_foot")
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One actuated hinge joint; its MJCF joint and actuator share ``name``."""
+
+    name: str
+    group: JointGroup
+    range: tuple[float, float]  # (lower, upper) in radians
+    kp: float  # PD stiffness, N·m/rad
+    kd: float  # PD damping, N·m·s/rad
+    torque_limit: float  # N·m, symmetric
+
+
+@dataclass(frozen=True)
+class ActuatorModel:
+    """How PD targets become joint torques, beyond what the MJCF itself expresses.
+
+    ``kind="pd"``: MuJoCo position actuators ("virtual actuators"): torque = kp (q* - q) - kd q̇,
+    clipped to ±torque_limit, all inside MuJoCo.
+
+    ``kind="servo"``: MuJoCo motor actuators whose torque is computed every physics substep by
+    :func:`amorctl.plugins.characters.actuators.servo_torque` (vectorized over envs): the PD
+    law on a command delayed by ``latency_steps`` physics steps, clipped by a torque–speed curve
+    that falls linearly from ``torque_limit`` at rest to zero at ``no_load_speed``. Armature,
+    Coulomb friction (``frictionloss``) and viscous friction (``damping``) are native MuJoCo joint
+    properties and are written into the MJCF with these same values.
+    """
+
+    kind: Literal["pd", "servo"]
+    armature: float = 0.0  # reflected rotor inertia, kg·m²
+    friction_coulomb: float = 0.0  # N·m
+    friction_viscous: float = 0.0  # N·m·s/rad
+    no_load_speed: float | None = None  # rad/s; None = no torque–speed limit
+    latency_steps: int = 0  # command delay in physics steps
+
+
+@dataclass(frozen=True)
+class CharacterSpec:
+    """A simulated character: its model file and everything needed to control and track it."""
+
+    name: str
+    description: str
+    mjcf_path: Path
+    root_body: str
+    joints: tuple[JointSpec, ...]  # actuated hinges in MJCF qpos order
+    end_effectors: tuple[str, ...]  # body names: hands then feet, (left, right) each
+    actuator: ActuatorModel
+    standing_height: float  # root height of the default standing pose, m
+    min_standing_height: float  # the root must stay above this while holding the pose, m
+    keypoints: Mapping[str, str]  # KEYPOINTS name -> body name, used by retargeting
+    scale_profile: str = "humanoid"  # which prior-scale column objective sets use ("humanoid" | "robot")
+    objective_scales: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    standing_pose: Mapping[str, float] = field(default_factory=dict)  # joint -> angle; others 0
+    physics_hz: int = 250
+    control_hz: int = 50
+    licence: str = ""
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control step."""
+        return self.physics_hz // self.control_hz
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joints)
+
+    def joint_names(self, group: JointGroup | None = None) -> tuple[str, ...]:
+        """Joint names in qpos order, optionally only one group's."""
+        return tuple(j.name for j in self.joints if group is None or j.group == group)
+
+    def group_indices(self, group: JointGroup) -> tuple[int, ...]:
+        """Indices into the actuated-joint vector of one group's joints."""
+        return tuple(i for i, j in enumerate(self.joints) if j.group == group)
+
+
+@dataclass(frozen=True)
+class ObjectiveSetSpec:
+    """An ordered set of m objectives; ``make(character)`` binds the character's prior scales.
+
+    The returned object computes rewards of shape ``[num_envs, m]``; weights are never part of it.
+    """
+
+    name: str
+    description: str
+    objectives: tuple[str, ...]
+    make: Callable[[CharacterSpec], Any]
+
+
+@runtime_checkable
+class Backend(Protocol):
+    """What a training backend provides. The trainer and the evaluation commands use only this."""
+
+    name: str
+
+    def make_env(self, **kwargs: Any) -> Any:
+        """A batched, Gymnasium-style vector environment."""
+        ...
+
+
+@dataclass(frozen=True)
+class BackendSpec:
+    """A backend plugin: ``make(**options)`` returns an object following :class:`Backend`."""
+
+    name: str
+    description: str
+    make: Callable[..., Any]
