@@ -90,3 +90,70 @@ def yaw_quat(angle: Any, xp: Any = np) -> Any:
 def heading_quat_inv(q: Any, xp: Any = np) -> Any:
     """The rotation that maps world vectors into the heading frame of q. q: [..., 4] -> [..., 4]."""
     return yaw_quat(-heading_angle(q, xp), xp)
+
+
+# --- additions for motion data (numpy only: used at preprocess time, never inside jitted code) ---
+
+
+def quat_normalize(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions with a non-negative w (a canonical sign). q: [..., 4] -> [..., 4]."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_from_mat(m: np.ndarray) -> np.ndarray:
+    """Quaternions (w, x, y, z) from rotation matrices. m: [..., 3, 3] -> [..., 4]."""
+    from scipy.spatial.transform import Rotation
+
+    m = np.asarray(m, dtype=np.float64)
+    xyzw = Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat()
+    return quat_normalize(xyzw[:, [3, 0, 1, 2]].reshape(*m.shape[:-2], 4))
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis * angle, angle in [0, π]). q: [..., 4] -> [..., 3]."""
+    q = quat_normalize(q)
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
+    return v * scale
+
+
+def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`quat_to_rotvec`. r: [..., 3] -> [..., 4]."""
+    r = np.asarray(r, dtype=np.float64)
+    angle = np.linalg.norm(r, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    sinc = np.where(angle > 1e-12, np.sin(half) / np.maximum(angle, 1e-12), 0.5)
+    return np.concatenate([np.cos(half), r * sinc], axis=-1)
+
+
+def quat_slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Shortest-path spherical interpolation. a, b: [..., 4], t: [...] in [0, 1] -> [..., 4]."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    dot = np.sum(a * b, axis=-1, keepdims=True)
+    b = np.where(dot < 0.0, -b, b)
+    delta = quat_mul(quat_conj(a), b)
+    r = quat_to_rotvec(delta) * np.asarray(t, dtype=np.float64)[..., None]
+    return quat_normalize(quat_mul(a, quat_from_rotvec(r)))
+
+
+def mat_to_euler_xyz(m: np.ndarray) -> np.ndarray:
+    """Intrinsic XYZ Euler angles (a, b, c) with m = Rx(a) Ry(b) Rz(c). m: [..., 3, 3] -> [..., 3]."""
+    m = np.asarray(m, dtype=np.float64)
+    b = np.arcsin(np.clip(m[..., 0, 2], -1.0, 1.0))
+    a = np.arctan2(-m[..., 1, 2], m[..., 2, 2])
+    c = np.arctan2(-m[..., 0, 1], m[..., 0, 0])
+    return np.stack([a, b, c], axis=-1)
+
+
+def euler_xyz_to_mat(e: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`mat_to_euler_xyz`. e: [..., 3] -> [..., 3, 3]."""
+    e = np.asarray(e, dtype=np.float64)
+    qa = quat_from_rotvec(e[..., :1] * np.array([1.0, 0.0, 0.0]))
+    qb = quat_from_rotvec(e[..., 1:2] * np.array([0.0, 1.0, 0.0]))
+    qc = quat_from_rotvec(e[..., 2:3] * np.array([0.0, 0.0, 1.0]))
+    return quat_to_mat(quat_mul(quat_mul(qa, qb), qc))

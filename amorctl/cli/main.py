@@ -41,33 +41,27 @@ def _root(
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero."""
+    debug = os.environ.get("AMORCTL_DEBUG", "") not in ("", "0")
     try:
-        rv = app(args=argv, standalone_mode=False)
+        app(args=argv, prog_name="amorctl")  # standalone mode: usage errors exit 2 via SystemExit
+    except SystemExit as exit_:
+        code = exit_.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
     except AmorError as err:
-        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+        if debug:
             raise
         print(f"error: {err}", file=sys.stderr)
         return err.exit_code
-    except typer.Exit as exit_:
-        return exit_.exit_code
-    except typer.Abort:
-        print("aborted", file=sys.stderr)
-        return 130
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except Exception as exc:  # click usage errors and anything unexpected
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            return exc.exit_code
-        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+    except Exception as exc:  # anything unexpected: one line unless debugging
+        if debug:
             raise
         print(f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
               file=sys.stderr)
         return 1
-    return rv if isinstance(rv, int) else 0
+    return 0
 
 
 if __name__ == "__main__":

@@ -1,0 +1,1 @@
+"""Built-in characters: ``humanoid36`` (DeepMimic humanoid) and ``biped20`` (Robotis OP3)."""

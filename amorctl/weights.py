@@ -1,0 +1,98 @@
+"""Reward weights on the simplex: parsing user strings, Dirichlet sampling, checks.
+
+A weight vector ``w`` has one entry per objective (m entries), every entry >= 0, summing to 1.
+The paper samples ``w ~ Dirichlet(1)``, the uniform distribution on the simplex.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from amorctl.errors import AmorError
+
+
+def parse_weights(text: str, names: Sequence[str], *, default: float = 0.0) -> np.ndarray:
+    """Parse ``"up=2,smooth=1"`` into a weight vector on the simplex, ordered as ``names``.
+
+    Objectives not named get ``default`` before normalization. ``"uniform"`` gives 1/m each.
+    Values are normalized to sum to 1, so ``up=2,smooth=1`` and ``up=0.66,smooth=0.33`` agree.
+
+    Args:
+        text: comma-separated ``name=value`` pairs (spaces allowed) or ``"uniform"``.
+        names: the objective names, in reward order (m of them).
+        default: the raw value of objectives the text leaves out.
+
+    Returns:
+        [m] float64 weights, non-negative, summing to 1.
+
+    Raises:
+        AmorError: empty text, a pair without ``=``, an unknown or repeated name, a value that is
+            not a finite non-negative number, or all values zero.
+    """
+    names = list(names)
+    stripped = text.strip()
+    if stripped.lower() == "uniform":
+        return np.full(len(names), 1.0 / len(names))
+    if not stripped:
+        raise AmorError(f"empty weights; give name=value pairs for the objectives {', '.join(names)}")
+    raw = np.full(len(names), float(default))
+    seen: set[str] = set()
+    for part in stripped.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "=" not in part:
+            raise AmorError(f"weights: {part!r} is not name=value (objectives: {', '.join(names)})")
+        key, _, value = (s.strip() for s in part.partition("="))
+        if key not in names:
+            raise AmorError(f"weights: unknown objective {key!r} (objectives: {', '.join(names)})")
+        if key in seen:
+            raise AmorError(f"weights: objective {key!r} given twice")
+        seen.add(key)
+        try:
+            number = float(value)
+        except ValueError:
+            raise AmorError(f"weights: {key}={value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise AmorError(f"weights: {key}={value} is not finite")
+        if number < 0:
+            raise AmorError(f"weights: {key}={value} is negative; weights must be >= 0")
+        raw[names.index(key)] = number
+    return normalize_weights(raw)
+
+
+def normalize_weights(raw: np.ndarray) -> np.ndarray:
+    """Project non-negative raw weights [..., m] onto the simplex by dividing by their sum.
+
+    Raises:
+        AmorError: a negative or non-finite entry, or a row that sums to zero.
+    """
+    raw = np.asarray(raw, dtype=np.float64)
+    if not np.all(np.isfinite(raw)):
+        raise AmorError("weights must be finite")
+    if np.any(raw < 0):
+        raise AmorError("weights must be >= 0")
+    total = raw.sum(axis=-1, keepdims=True)
+    if np.any(total <= 0):
+        raise AmorError("weights are all zero; at least one objective needs a positive weight")
+    return raw / total
+
+
+def sample_dirichlet(rng: np.random.Generator, n: int, m: int, alpha: float = 1.0) -> np.ndarray:
+    """Draw n weight vectors from Dirichlet(alpha) over m objectives (alpha=1: uniform on the simplex).
+
+    Returns:
+        [n, m] float32, each row on the simplex.
+    """
+    if m == 1:
+        return np.ones((n, 1), dtype=np.float32)
+    w = rng.dirichlet(np.full(m, alpha), size=n)
+    return w.astype(np.float32)
+
+
+def format_weights(w: np.ndarray, names: Sequence[str]) -> str:
+    """The inverse of :func:`parse_weights`: ``"up=0.5,lo=0.5,..."`` with 4 significant digits."""
+    return ",".join(f"{n}={float(v):.4g}" for n, v in zip(names, np.asarray(w).ravel(), strict=True))
