@@ -29,8 +29,6 @@ else:  # pragma: no cover
 
 def _doc(default: Any, text: str) -> Any:
     """A dataclass field with a one-line doc (kept in ``metadata["doc"]``)."""
-    if isinstance(default, tuple):
-        return field(default=default, metadata={"doc": text})
     return field(default=default, metadata={"doc": text})
 
 

@@ -96,3 +96,34 @@ def sample_dirichlet(rng: np.random.Generator, n: int, m: int, alpha: float = 1.
 def format_weights(w: np.ndarray, names: Sequence[str]) -> str:
     """The inverse of :func:`parse_weights`: ``"up=0.5,lo=0.5,..."`` with 4 significant digits."""
     return ",".join(f"{n}={float(v):.4g}" for n, v in zip(names, np.asarray(w).ravel(), strict=True))
+
+
+def simplex_grid(m: int, divisions: int) -> np.ndarray:
+    """All weight vectors on the simplex whose entries are multiples of ``1 / divisions``.
+
+    The uniform grid alternative to Dirichlet sampling: ``C(divisions + m - 1, m - 1)`` vectors,
+    including the corners (one objective only) and, when ``divisions`` is a multiple of m, the
+    equal-weights vector. Rows are in lexicographic order of their integer counts, largest first.
+
+    Args:
+        m: number of objectives, >= 1.
+        divisions: grid resolution, >= 1 (``divisions=1`` gives the m corners).
+
+    Returns:
+        [C(divisions + m - 1, m - 1), m] float64, each row summing to 1.
+    """
+    if m < 1:
+        raise AmorError(f"simplex grid: need at least one objective, got m={m}")
+    if divisions < 1:
+        raise AmorError(f"simplex grid: divisions must be >= 1, got {divisions}")
+    rows: list[tuple[int, ...]] = []
+
+    def fill(prefix: tuple[int, ...], left: int) -> None:
+        if len(prefix) == m - 1:
+            rows.append((*prefix, left))
+            return
+        for k in range(left, -1, -1):
+            fill((*prefix, k), left - k)
+
+    fill((), divisions)
+    return np.asarray(rows, dtype=np.float64) / divisions

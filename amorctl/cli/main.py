@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from amorctl import __version__
-from amorctl.cli import characters, plugins
+from amorctl.cli import characters, plugins, train
 from amorctl.errors import AmorError
 
 app = typer.Typer(
@@ -21,6 +21,7 @@ app = typer.Typer(
     add_completion=False,
 )
 app.command("plugins")(plugins.plugins)
+app.command("train")(train.train)
 app.add_typer(characters.app, name="characters")
 
 

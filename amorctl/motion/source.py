@@ -95,7 +95,7 @@ def deepmimic_skeleton() -> Skeleton:
     offsets = np.array([_dm(urdf[n][1]) for n in names])
     keypoints = {
         "root": ("root", (0.0, 0.0, 0.0)),
-        "head": ("neck", _dm((0.0, 0.7, 0.0))),  # centre of the head sphere
+        "head": ("neck", (0.0, 0.0, 0.0)),  # the neck joint: character key points are body origins
         "left_hand": ("left_elbow", _dm((0.0, -1.035788, 0.0))),  # the fixed wrist
         "right_hand": ("right_elbow", _dm((0.0, -1.035788, 0.0))),
         "left_foot": ("left_ankle", (0.0, 0.0, 0.0)),

@@ -12,6 +12,7 @@ PD gains and torque limits are DeepMimic's (``pybullet_envs/deep_mimic``: ``kpOr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from amorctl.registry import hookimpl
@@ -95,6 +96,6 @@ SPEC = CharacterSpec(
 
 
 @hookimpl
-def amorctl_register_characters(register) -> None:  # type: ignore[no-untyped-def]
+def amorctl_register_characters(register: Callable[[CharacterSpec], None]) -> None:
     """Register :data:`SPEC`."""
     register(SPEC)

@@ -1,0 +1,197 @@
+"""``amorctl train``: train one weight-conditioned policy (MOPPO), or plain PPO with fixed weights."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from amorctl.cli.output import console, print_json
+from amorctl.config import PRESETS, TrainConfig, load_config, load_preset, merge
+from amorctl.errors import AmorError
+from amorctl.runner import load_run_config, train_run
+from amorctl.vecenv import VectorEnv
+
+
+def _fmt_time(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    seconds = int(seconds)
+    return f"{seconds // 3600:d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+def _fmt(value: float, spec: str = ".3g") -> str:
+    return "–" if not math.isfinite(value) else format(value, spec)
+
+
+class _Display:
+    """The live view: progress, throughput, losses, episode statistics, per-objective table."""
+
+    def __init__(self, out: Path, config: TrainConfig, live: bool) -> None:
+        self.out, self.config, self.live_enabled = out, config, live
+        self.names: tuple[str, ...] = ()
+        self.start = 0
+        self.live: Live | None = None
+        self.last_print = 0.0
+
+    def on_start(self, env: VectorEnv, start: int, total: int) -> None:
+        self.names, self.start = tuple(env.reward_space.names), start
+        c = self.config
+        where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
+        mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else "w ~ Dirichlet(1) per episode"
+        console.print(
+            f"[bold]amorctl train[/bold] {where} · backend {c.run.backend} · {c.env.num_envs} envs · "
+            f"obs {env.obs_dim} · actions {env.action_dim} · {len(self.names)} objectives · {mode}\n"
+            f"run directory: {self.out}" + (f" (resuming at iteration {start})" if start else ""),
+            highlight=False,
+        )
+        if self.live_enabled:
+            self.live = Live(console=console, refresh_per_second=4, transient=False)
+            self.live.start()
+
+    def render(self, m: dict[str, float], total: int, elapsed: float) -> Group:
+        it = int(m["iteration"])
+        done = it - self.start
+        left = elapsed / max(done, 1) * (total - it)
+        ep_s = m["episode/length"] / (50.0 if self.config.env.kind != "gym" else 1.0)
+        head = Text(
+            f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   {m['env_steps_per_s']:,.0f} steps/s   "
+            f"elapsed {_fmt_time(elapsed)}   left {_fmt_time(left)}\n"
+            f"loss {_fmt(m['loss/total'])} (policy {_fmt(m['loss/policy'])}, value {_fmt(m['loss/value'])}, "
+            f"entropy {_fmt(m['loss/entropy'])})   KL {_fmt(m['kl'])}   clip {_fmt(m['clip_fraction'], '.2f')}   "
+            f"lr {_fmt(m['learning_rate'])}   action std {_fmt(m['action_std'])}\n"
+            f"episodes {int(m['episodes'])}   length {_fmt(m['episode/length'], '.1f')} steps "
+            f"({_fmt(ep_s, '.2f')} s)   survival {_fmt(100 * m['episode/survival'], '.0f')}%   "
+            f"return·w {_fmt(m['return/scalarized'])}"
+        )
+        table = Table(box=None, pad_edge=False)
+        for col in ("objective", "episode return", "reward/step", "critic expl. var."):
+            table.add_column(col, justify="right" if col != "objective" else "left")
+        for name in self.names:
+            table.add_row(name, _fmt(m[f"return/{name}"]), _fmt(m[f"reward/{name}"]),
+                          _fmt(m[f"explained_variance/{name}"], ".2f"))
+        return Group(head, table)
+
+    def on_iteration(self, m: dict[str, float], total: int, elapsed: float) -> None:
+        if self.live is not None:
+            self.live.update(self.render(m, total, elapsed))
+            return
+        now = time.monotonic()
+        it = int(m["iteration"])
+        if now - self.last_print >= 10.0 or it == total or it - self.start <= 1:
+            self.last_print = now
+            rets = " ".join(f"{n}={_fmt(m[f'return/{n}'])}" for n in self.names)
+            console.print(
+                f"it {it}/{total}  {m['env_steps_per_s']:,.0f} steps/s  loss {_fmt(m['loss/total'])}  "
+                f"value {_fmt(m['loss/value'])}  kl {_fmt(m['kl'])}  ep len {_fmt(m['episode/length'], '.1f')}  "
+                f"survival {_fmt(m['episode/survival'], '.2f')}  returns {rets}",
+                highlight=False,
+            )
+
+    def stop(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+
+
+def _resolve_config(
+    preset: str | None, config_file: Path | None, overrides: dict[str, dict[str, Any]]
+) -> TrainConfig:
+    base = load_preset(preset or "quick")
+    if config_file is not None:
+        base = load_config(config_file, base)
+    return merge(base, {k: v for k, v in overrides.items() if v}, "command line")
+
+
+def _resume_config(out: Path, preset: str | None, config_file: Path | None,
+                   overrides: dict[str, dict[str, Any]]) -> TrainConfig:
+    """The run's own config; only ``--iterations`` may change, anything else must agree."""
+    if preset is not None or config_file is not None:
+        raise AmorError("--resume continues with the run's own config.toml; drop --preset/--config")
+    config = load_run_config(out)
+    for section, values in overrides.items():
+        for key, value in values.items():
+            if section == "run" and key == "iterations":
+                continue
+            current = getattr(getattr(config, section), key)
+            if value != current:
+                raise AmorError(f"--resume: the run in {out} has {section}.{key} = {current!r}, "
+                                f"not {value!r}; it cannot change when resuming")
+    iterations = overrides.get("run", {}).get("iterations")
+    return config if iterations is None else merge(config, {"run": {"iterations": iterations}}, "command line")
+
+
+def train(
+    character: Annotated[str | None, typer.Option("--character", "-c", help="Character plugin to train "
+                                                  "(default: the preset's, biped20).")] = None,
+    config_file: Annotated[Path | None, typer.Option("--config", help="TOML config on top of the preset "
+                                                     "(unknown keys are rejected).")] = None,
+    preset: Annotated[str | None, typer.Option("--preset", help=f"Preset: {' | '.join(PRESETS)} "
+                                               "(default quick).")] = None,
+    backend: Annotated[str | None, typer.Option("--backend", help="Training backend plugin.")] = None,
+    data: Annotated[Path | None, typer.Option("--data", help="Motion dataset (default: the character's "
+                                              "built-in clips, cached on first use).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Run directory (default runs/<env>-<time>).")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Seed of env, networks and noise.")] = None,
+    iterations: Annotated[int | None, typer.Option("--iterations", help="Total training iterations.")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its newest "
+                                         "checkpoint.")] = False,
+    fixed_weights: Annotated[str | None, typer.Option("--fixed-weights", help="Plain PPO with one fixed w, "
+                                                      "e.g. up=1,smooth=0.5 (normalized; others 0).")] = None,
+    env: Annotated[str | None, typer.Option("--env", help="tracking (default) | toy | gym:<Gymnasium id> "
+                                            "with a vector reward.")] = None,
+    num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary at the end, no live view.")] = False,
+) -> None:
+    """Train one policy for every trade-off between the objectives (MOPPO, the AMOR paper's Section 4)."""
+    env_section: dict[str, Any] = {"character": character, "num_envs": num_envs, "fixed_weights": fixed_weights,
+                                   "dataset": str(data) if data is not None else None}
+    if env is not None:
+        kind, _, gym_id = env.partition(":")
+        if kind not in ("tracking", "toy", "gym") or (kind == "gym") != bool(gym_id):
+            raise AmorError(f"--env {env!r}: expected tracking, toy or gym:<id>")
+        env_section.update(kind=kind, gym_id=gym_id or None)
+    overrides = {
+        "run": {"backend": backend, "seed": seed, "iterations": iterations},
+        "env": env_section,
+    }
+    overrides = {s: {k: v for k, v in vals.items() if v is not None} for s, vals in overrides.items()}
+    if resume:
+        if out is None:
+            raise AmorError("--resume needs --out, the run directory to continue")
+        config = _resume_config(out, preset, config_file, overrides)
+    else:
+        config = _resolve_config(preset, config_file, overrides)
+        if out is None:
+            what = config.env.character if config.env.kind == "tracking" else config.env.kind
+            out = Path("runs") / f"{what}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+    display = _Display(out, config, live=console.is_terminal and not json_out)
+    try:
+        result = train_run(config, out, resume=resume,
+                           on_start=None if json_out else display.on_start,
+                           on_iteration=None if json_out else display.on_iteration)
+    finally:
+        display.stop()
+    summary = {
+        "out": str(result.out),
+        "start_iteration": result.start_iteration,
+        "end_iteration": result.end_iteration,
+        "interrupted": result.interrupted,
+        "checkpoint": str(result.checkpoint) if result.checkpoint else None,
+        "metrics": {k: v for k, v in result.last_metrics.items() if math.isfinite(v)},
+    }
+    if json_out:
+        print_json(summary)
+        return
+    state = "interrupted" if result.interrupted else "done"
+    console.print(f"{state} at iteration {result.end_iteration}; checkpoint {summary['checkpoint']}", highlight=False)
+    if result.interrupted:
+        raise typer.Exit(130)

@@ -1,0 +1,309 @@
+"""N copies of a character simulated together by MuJoCo's C thread pool (``mujoco.rollout``).
+
+One :class:`BatchSim` owns the batch state ``[N, nstate]`` (MuJoCo's ``mjSTATE_FULLPHYSICS``),
+a per-env solver warm start ``[N, nv]`` and one reused :class:`mujoco.rollout.Rollout` pool. A
+control step is one ``rollout`` call of ``substeps`` physics steps for PD characters (MuJoCo's
+position actuators hold the target through the substeps), or ``substeps`` calls of one physics
+step for servo characters, whose motor torques are computed between the calls by the vectorized
+servo model (``servo_torque`` on the command delayed by ``CommandDelay``). Why the rollout pool
+and not per-env ``MjData`` on Python threads: docs/environment.md.
+
+Body poses come from frame sensors added to the model at load time (``framepos``,
+``framequat``, ``framelinvel`` on each end effector's body frame), joint torques of PD characters
+from ``actuatorfrc`` sensors. MuJoCo computes sensors at the start of a physics step, so the
+end-effector readings of a control step describe the state one physics substep (4 ms at 250 Hz)
+before the final ``qpos``/``qvel``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from amorctl.errors import AmorError
+from amorctl.geometry import quat_conj, quat_rotate
+from amorctl.specs import CharacterSpec
+
+STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+CTRL_SPEC = mujoco.mjtState.mjSTATE_CTRL
+
+#: |q̇| above this (rad/s or m/s) counts as a diverged simulation.
+MAX_QVEL = 1.0e3
+
+
+def build_model(character: CharacterSpec) -> mujoco.MjModel:
+    """Compile the character's MJCF with the sensors the tracking env reads.
+
+    Sensors, in order: per end effector ``framepos`` [3], ``framequat`` [4], ``framelinvel`` [3]
+    (world frame, body frame origin); then for PD characters one ``actuatorfrc`` per actuated
+    joint, in the character's joint order. The timestep is ``1 / physics_hz``.
+
+    Raises:
+        AmorError: the file is missing, a named body or actuator does not exist, or MuJoCo rejects it.
+    """
+    path = character.mjcf_path
+    if not path.is_file():
+        raise AmorError(f"{path}: character {character.name!r} model file not found")
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as exc:
+        raise AmorError(f"{path}: MuJoCo could not parse it: {exc}") from None
+    for body in character.end_effectors:
+        for kind in (
+            mujoco.mjtSensor.mjSENS_FRAMEPOS,
+            mujoco.mjtSensor.mjSENS_FRAMEQUAT,
+            mujoco.mjtSensor.mjSENS_FRAMELINVEL,
+        ):
+            s = spec.add_sensor()
+            s.type = kind
+            s.objtype = mujoco.mjtObj.mjOBJ_XBODY
+            s.objname = body
+    if character.actuator.kind == "pd":
+        for joint in character.joint_names():
+            s = spec.add_sensor()
+            s.type = mujoco.mjtSensor.mjSENS_ACTUATORFRC
+            s.objtype = mujoco.mjtObj.mjOBJ_ACTUATOR
+            s.objname = joint
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        raise AmorError(f"{path}: character {character.name!r}: MuJoCo could not compile it: {exc}") from None
+    model.opt.timestep = 1.0 / character.physics_hz
+    return model
+
+
+def _id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str, what: str, character: str) -> int:
+    i = mujoco.mj_name2id(model, obj, name)
+    if i < 0:
+        raise AmorError(f"character {character!r}: {what} {name!r} not found in its MJCF")
+    return int(i)
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    """What one control step of the batch produced.
+
+    torque [N, S, J] joint torques of every substep; ee_pos [N, E, 3], ee_quat [N, E, 4],
+    ee_lin_vel [N, E, 3] world-frame end-effector state (sensor readings of the last substep);
+    diverged [N] bool: the env's simulation blew up (non-finite or huge state, or MuJoCo reset it).
+    """
+
+    torque: np.ndarray
+    ee_pos: np.ndarray
+    ee_quat: np.ndarray
+    ee_lin_vel: np.ndarray
+    diverged: np.ndarray
+
+
+class BatchSim:
+    """N environments of one character, stepped in parallel by a reused MuJoCo rollout pool.
+
+    Args:
+        character: the character to simulate.
+        num_envs: N.
+        nthread: threads of the rollout pool (the machine's cores).
+    """
+
+    def __init__(self, character: CharacterSpec, num_envs: int, nthread: int = 2) -> None:
+        if num_envs < 1:
+            raise AmorError(f"num_envs must be >= 1, got {num_envs}")
+        self.character = character
+        self.num_envs = n = int(num_envs)
+        self.nthread = int(nthread)
+        self.model = m = build_model(character)
+        self.substeps = character.substeps
+        self.dt = float(m.opt.timestep)
+        name = character.name
+        root = _id(m, mujoco.mjtObj.mjOBJ_BODY, character.root_body, "root body", name)
+        if m.body_jntnum[root] < 1 or m.jnt_type[m.body_jntadr[root]] != mujoco.mjtJoint.mjJNT_FREE:
+            raise AmorError(f"character {name!r}: root body {character.root_body!r} has no free joint")
+        free = int(m.body_jntadr[root])
+        self.root_qpos = int(m.jnt_qposadr[free])
+        self.root_dof = int(m.jnt_dofadr[free])
+        jids = [_id(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint", name) for j in character.joint_names()]
+        self.joint_qpos = m.jnt_qposadr[jids].astype(np.int64)
+        self.joint_dof = m.jnt_dofadr[jids].astype(np.int64)
+        self.actuators = np.array(
+            [_id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, j, "actuator", name) for j in character.joint_names()]
+        )
+        self.gear = m.actuator_gear[self.actuators, 0].copy()
+        self.num_joints = len(jids)
+        self.num_ee = len(character.end_effectors)
+        self.servo = character.actuator.kind == "servo"
+
+        # State layout of mjSTATE_FULLPHYSICS: time, qpos, qvel, then act/history/plugin/plastic.
+        self.nstate = mujoco.mj_stateSize(m, STATE_SPEC)
+        self.s_time = 0
+        self.s_qpos = slice(1, 1 + m.nq)
+        self.s_qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
+        data = mujoco.MjData(m)
+        mujoco.mj_resetData(m, data)
+        self.template = np.empty(self.nstate)
+        mujoco.mj_getState(m, data, self.template, STATE_SPEC)
+        self.state = np.tile(self.template, (n, 1))
+        self.warmstart = np.zeros((n, m.nv))
+        self.ctrl = np.zeros((n, self.substeps if not self.servo else 1, m.nu))
+        steps = 1 if self.servo else self.substeps
+        self._out_state = np.empty((n, steps, self.nstate))
+        self._out_sens = np.empty((n, steps, m.nsensordata))
+        self._models = [m] * n
+        self._datas = [mujoco.MjData(m) for _ in range(self.nthread)]
+        self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
+        self._chunk = max(1, n // (self.nthread * 10))
+        self.torque = np.zeros((n, self.substeps, self.num_joints))
+
+        if self.servo:
+            from amorctl.plugins.characters.actuators import CommandDelay
+
+            joints = character.joints
+            self.kp = np.array([j.kp for j in joints])
+            self.kd = np.array([j.kd for j in joints])
+            self.torque_limit = np.array([j.torque_limit for j in joints])
+            self.no_load_speed = character.actuator.no_load_speed
+            self.delay = CommandDelay(character.actuator.latency_steps, n, self.num_joints)
+
+    # --- state access ---------------------------------------------------------------------------
+
+    @property
+    def qpos(self) -> np.ndarray:
+        """[N, nq] view into the batch state."""
+        return self.state[:, self.s_qpos]
+
+    @property
+    def qvel(self) -> np.ndarray:
+        """[N, nv] view into the batch state."""
+        return self.state[:, self.s_qvel]
+
+    def root_pos(self) -> np.ndarray:
+        """[N, 3] world root position."""
+        return self.state[:, 1 + self.root_qpos : 4 + self.root_qpos]
+
+    def root_quat(self) -> np.ndarray:
+        """[N, 4] world root orientation (w, x, y, z)."""
+        return self.state[:, 4 + self.root_qpos : 8 + self.root_qpos]
+
+    def root_lin_vel(self) -> np.ndarray:
+        """[N, 3] world root linear velocity (MuJoCo's free joint stores it in world frame)."""
+        o = self.s_qvel.start + self.root_dof
+        return self.state[:, o : o + 3]
+
+    def root_ang_vel(self) -> np.ndarray:
+        """[N, 3] world root angular velocity (the free joint stores it in the body frame)."""
+        o = self.s_qvel.start + self.root_dof
+        return quat_rotate(self.root_quat(), self.state[:, o + 3 : o + 6])
+
+    def joint_pos(self) -> np.ndarray:
+        """[N, J] actuated joint positions, character order."""
+        return self.state[:, 1 + self.joint_qpos]
+
+    def joint_vel(self) -> np.ndarray:
+        """[N, J] actuated joint velocities, character order."""
+        return self.state[:, self.s_qvel.start + self.joint_dof]
+
+    def set_state(
+        self,
+        env_ids: np.ndarray,
+        root_pos: np.ndarray,
+        root_quat: np.ndarray,
+        root_lin_vel: np.ndarray,
+        root_ang_vel: np.ndarray,
+        joint_pos: np.ndarray,
+        joint_vel: np.ndarray,
+    ) -> None:
+        """Put envs ``env_ids`` [k] into the given world-frame state; clears their warm start.
+
+        Shapes: root_pos [k, 3], root_quat [k, 4], root_lin_vel [k, 3] and root_ang_vel [k, 3]
+        (world), joint_pos [k, J], joint_vel [k, J]. Joints the character does not actuate keep
+        the model's default pose, and time restarts at 0.
+        """
+        s = np.tile(self.template, (len(env_ids), 1))
+        q0, v0 = 1 + self.root_qpos, self.s_qvel.start + self.root_dof
+        s[:, q0 : q0 + 3] = root_pos
+        s[:, q0 + 3 : q0 + 7] = root_quat / np.linalg.norm(root_quat, axis=-1, keepdims=True)
+        s[:, v0 : v0 + 3] = root_lin_vel
+        s[:, v0 + 3 : v0 + 6] = quat_rotate(quat_conj(root_quat), root_ang_vel)
+        s[:, 1 + self.joint_qpos] = joint_pos
+        s[:, self.s_qvel.start + self.joint_dof] = joint_vel
+        self.state[env_ids] = s
+        self.warmstart[env_ids] = 0.0
+        if self.servo:  # pending commands of reset envs become their initial pose
+            mask = np.zeros(self.num_envs, dtype=bool)
+            mask[env_ids] = True
+            order = np.argsort(env_ids)
+            self.delay.reset(mask, np.asarray(joint_pos)[order])
+
+    # --- stepping -------------------------------------------------------------------------------
+
+    def _rollout(self, nstep: int) -> None:
+        self._pool.rollout(
+            self._models,
+            self._datas,
+            self.state,
+            self.ctrl,
+            control_spec=CTRL_SPEC,
+            skip_checks=True,
+            nstep=nstep,
+            initial_warmstart=self.warmstart,
+            state=self._out_state,
+            sensordata=self._out_sens,
+            chunk_size=self._chunk,
+        )
+
+    def step(self, pd_target: np.ndarray) -> StepOutput:
+        """Advance every env by one control step toward PD targets [N, J] (rad)."""
+        n, jn = self.num_envs, self.num_joints
+        time0 = self.state[:, 0].copy()
+        if not self.servo:
+            self.ctrl[:, :, self.actuators] = pd_target[:, None, :]
+            self._rollout(self.substeps)
+            out = self._out_state
+            qv_prev, qv_last = out[:, -2, self.s_qvel] if self.substeps > 1 else self.qvel, out[:, -1, self.s_qvel]
+            self.warmstart = (qv_last - qv_prev) / self.dt
+            self.state[:] = out[:, -1]
+            nsens = self.num_ee * 10
+            self.torque[:] = self._out_sens[:, :, nsens : nsens + jn] * self.gear
+        else:
+            for sub in range(self.substeps):
+                target = self.delay.push(pd_target)
+                tau = servo_torque_batch(self, target)
+                self.torque[:, sub] = tau
+                self.ctrl[:, 0, self.actuators] = tau / self.gear
+                qv_prev = self.qvel.copy()
+                self._rollout(1)
+                self.state[:] = self._out_state[:, 0]
+                self.warmstart = (self.qvel - qv_prev) / self.dt
+        sens = self._out_sens[:, -1, : self.num_ee * 10].reshape(n, self.num_ee, 10)
+        expected = time0 + self.substeps * self.dt
+        finite = np.isfinite(self.state).all(axis=1) & np.isfinite(sens).all(axis=(1, 2))
+        diverged = ~finite | (np.abs(self.qvel) > MAX_QVEL).any(axis=1)
+        diverged |= np.abs(self.state[:, 0] - expected) > 0.5 * self.dt  # MuJoCo reset the env itself
+        self.warmstart[~np.isfinite(self.warmstart).all(axis=1)] = 0.0
+        return StepOutput(
+            torque=self.torque,
+            ee_pos=sens[:, :, 0:3],
+            ee_quat=sens[:, :, 3:7],
+            ee_lin_vel=sens[:, :, 7:10],
+            diverged=diverged,
+        )
+
+    def close(self) -> None:
+        """Shut the thread pool down."""
+        self._pool.close()
+
+
+def servo_torque_batch(sim: BatchSim, target: np.ndarray) -> np.ndarray:
+    """The servo model's joint torques [N, J] for delayed targets [N, J] at the current state."""
+    from amorctl.plugins.characters.actuators import servo_torque
+
+    return servo_torque(
+        target,
+        sim.joint_pos(),
+        sim.joint_vel(),
+        sim.kp,
+        sim.kd,
+        sim.torque_limit,
+        sim.no_load_speed,
+    )

@@ -1,0 +1,113 @@
+"""A small synthetic :class:`MotionLibrary` for tests and benchmarks (no mocap needed).
+
+Each clip holds the character's standing pose at a fixed heading with a sinusoid added to every
+actuated joint; end-effector poses come from MuJoCo forward kinematics of each frame, velocities
+from finite differences, ``frames`` from :func:`amorctl.envs.tracking_inputs.frame_features`, and
+the latent ``z`` is a (sin, cos) phase code standing in for the motion VAE.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from amorctl.envs.tracking_inputs import frame_features
+from amorctl.geometry import quat_mul, yaw_quat
+from amorctl.motion.clips import ClipInfo, MotionLibrary
+from amorctl.specs import CharacterSpec
+
+
+def synthetic_library(
+    character: CharacterSpec,
+    num_clips: int = 3,
+    seconds: float = 2.0,
+    amplitude: float = 0.15,
+    seed: int = 0,
+) -> MotionLibrary:
+    """Swaying-in-place clips at the character's control rate.
+
+    Args:
+        character: the character the clips are for.
+        num_clips: K clips, each with its own heading, frequency and phases.
+        seconds: duration of each clip.
+        amplitude: joint sinusoid amplitude, rad (clipped to the joint range).
+        seed: seed of the random headings, frequencies and phases.
+    """
+    from amorctl.envs.batch_sim import BatchSim  # joint/root indexing of the compiled model
+
+    rng = np.random.default_rng(seed)
+    sim = BatchSim(character, num_envs=1, nthread=1)
+    m = sim.model
+    sim.close()
+    d = mujoco.MjData(m)
+    fps = float(character.control_hz)
+    nf = int(round(seconds * fps)) + 1
+    jn = character.num_joints
+    lo = np.array([j.range[0] for j in character.joints])
+    hi = np.array([j.range[1] for j in character.joints])
+    stand = np.array([character.standing_pose.get(j.name, 0.0) for j in character.joints])
+    q0 = m.qpos0[sim.root_qpos + 3 : sim.root_qpos + 7]
+    body_ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in character.end_effectors]
+
+    arrays: dict[str, list[np.ndarray]] = {k: [] for k in ("rp", "rq", "q", "ep", "eq")}
+    clips = []
+    for k in range(num_clips):
+        t = np.arange(nf) / fps
+        freq = rng.uniform(0.4, 1.0)
+        phase = rng.uniform(0, 2 * np.pi, size=jn)
+        q = np.clip(stand + amplitude * np.sin(2 * np.pi * freq * t[:, None] + phase), lo, hi)
+        yaw = rng.uniform(-np.pi, np.pi)
+        rq = np.tile(quat_mul(yaw_quat(np.array(yaw)), q0), (nf, 1))
+        rp = np.tile([rng.uniform(-1, 1), rng.uniform(-1, 1), character.standing_height], (nf, 1))
+        ep, eq = np.empty((nf, len(body_ids), 3)), np.empty((nf, len(body_ids), 4))
+        for i in range(nf):  # setup only, not a hot path
+            d.qpos[:] = m.qpos0
+            d.qpos[sim.root_qpos : sim.root_qpos + 3] = rp[i]
+            d.qpos[sim.root_qpos + 3 : sim.root_qpos + 7] = rq[i]
+            d.qpos[sim.joint_qpos] = q[i]
+            mujoco.mj_kinematics(m, d)
+            ep[i], eq[i] = d.xpos[body_ids], d.xquat[body_ids]
+        for key, val in zip(("rp", "rq", "q", "ep", "eq"), (rp, rq, q, ep, eq), strict=True):
+            arrays[key].append(val)
+        clips.append(
+            ClipInfo(
+                name=f"sway{k}",
+                source="synthetic",
+                sha256="",
+                licence="CC0-1.0",
+                start=k * nf,
+                num_frames=nf,
+                source_fps=fps,
+            )
+        )
+
+    def cat(key: str) -> np.ndarray:
+        return np.concatenate(arrays[key], axis=0)
+
+    def grad(key: str) -> np.ndarray:
+        return np.concatenate([np.gradient(a, 1.0 / fps, axis=0) for a in arrays[key]], axis=0)
+
+    root_pos, root_quat, joint_pos, ee_pos, ee_quat = cat("rp"), cat("rq"), cat("q"), cat("ep"), cat("eq")
+    zeros3 = np.zeros_like(root_pos)
+    joint_vel, ee_lin_vel = grad("q"), grad("ep")
+    frames = frame_features(root_pos, root_quat, zeros3, zeros3, joint_pos, joint_vel, ee_pos, ee_quat, ee_lin_vel)
+    phase = 2 * np.pi * np.concatenate([np.arange(nf) / (nf - 1)] * num_clips)
+    return MotionLibrary(
+        character=character.name,
+        fps=fps,
+        joint_names=character.joint_names(),
+        end_effectors=character.end_effectors,
+        clips=tuple(clips),
+        root_pos=root_pos,
+        root_quat=root_quat,
+        root_lin_vel=zeros3,
+        root_ang_vel=zeros3.copy(),
+        joint_pos=joint_pos,
+        joint_vel=joint_vel,
+        ee_pos=ee_pos,
+        ee_quat=ee_quat,
+        ee_lin_vel=ee_lin_vel,
+        frames=frames.astype(np.float32),
+        z=np.stack([np.sin(phase), np.cos(phase)], axis=-1).astype(np.float32),
+        metadata={"synthetic": True},
+    )

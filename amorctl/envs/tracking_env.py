@@ -1,0 +1,319 @@
+"""The motion-tracking vector environment (follows :class:`amorctl.vecenv.VectorEnv`).
+
+N characters track clips of a :class:`MotionLibrary` in parallel. Every episode starts with
+reference-state initialization (RSI) at a random clip and time and draws ``w ~ Dirichlet(1)``
+(or uses the fixed weights it was given); the reference moves forward one frame per control step
+and jumps to the start of a new random clip when its clip ends, while ``w`` stays. An episode
+terminates when the character falls or its simulation diverges, and is truncated at
+``max_episode_steps``; envs reset themselves. Episodes: docs/environment.md; observation layout
+and action: docs/observations.md; rewards: the objective set (docs/objectives.md).
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any, Literal
+
+import numpy as np
+
+from amorctl.envs.batch_sim import BatchSim
+from amorctl.envs.tracking_inputs import TrackingInputs, frame_dim, frame_features, split_frame
+from amorctl.errors import AmorError
+from amorctl.motion.clips import MotionLibrary
+from amorctl.registry import get_registry
+from amorctl.specs import CharacterSpec, ObjectiveSetSpec
+from amorctl.vecenv import RewardSpace
+
+ActionMode = Literal["absolute", "residual"]
+
+
+class TrackingEnv:
+    """Batched, weight-conditioned motion tracking on MuJoCo (torch-cpu backend's environment).
+
+    Args:
+        character: a :class:`CharacterSpec` or the name of an installed character.
+        library: the clips to track; its character, joints and end effectors must match.
+        objective_set: an :class:`ObjectiveSetSpec` or the name of an installed one.
+        num_envs: N.
+        max_episode_steps: time limit in control steps (truncation), default 10 s at 50 Hz.
+        action_mode: ``"absolute"``: the action is the PD target q* [J] in radians;
+            ``"residual"``: q* = q̂_{t+1} + action. Either way q* is clipped to the joint ranges.
+        future_frames: extra reference frames in the observation, as offsets in control steps
+            beyond the next target frame (e.g. ``(5, 25)``); clamped to the clip's last frame.
+        fixed_weights: [m] weights used for every episode instead of Dirichlet(1) samples
+            (plain-PPO baselines and evaluation); must lie on the simplex.
+        fall_height_fraction: fall rule: terminated when the root height is below the
+            reference's by more than this fraction of the character's standing height.
+        nthread: threads of MuJoCo's rollout pool.
+        seed: seed of RSI, clip switches and weight sampling (``reset(seed)`` reseeds).
+    """
+
+    def __init__(
+        self,
+        character: CharacterSpec | str,
+        library: MotionLibrary,
+        objective_set: ObjectiveSetSpec | str = "tracking7",
+        *,
+        num_envs: int = 256,
+        max_episode_steps: int = 500,
+        action_mode: ActionMode = "absolute",
+        future_frames: tuple[int, ...] = (),
+        fixed_weights: np.ndarray | None = None,
+        fall_height_fraction: float = 1.0 / 3.0,
+        nthread: int = 2,
+        seed: int | None = 0,
+    ) -> None:
+        registry = None
+        if isinstance(character, str) or isinstance(objective_set, str):
+            registry = get_registry()
+        self.character = registry.character(character) if isinstance(character, str) else character
+        spec = registry.objective_set(objective_set) if isinstance(objective_set, str) else objective_set
+        ch = self.character
+        _check_library(ch, library)
+        if action_mode not in ("absolute", "residual"):
+            raise AmorError(f"action_mode must be 'absolute' or 'residual', got {action_mode!r}")
+        if max_episode_steps < 1:
+            raise AmorError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if any(int(o) < 0 for o in future_frames):
+            raise AmorError(f"future_frames offsets must be >= 0, got {tuple(future_frames)}")
+
+        self.library = library
+        self.objectives = spec.make(ch)
+        self.m = m = len(spec.objectives)
+        self.reward_space = RewardSpace(
+            names=tuple(self.objectives.names),
+            descriptions=tuple(self.objectives.descriptions),
+            low=np.asarray(self.objectives.low, dtype=np.float64),
+            high=np.asarray(self.objectives.high, dtype=np.float64),
+        )
+        self.fixed_weights = None if fixed_weights is None else _check_weights(fixed_weights, m)
+        self.num_envs = n = int(num_envs)
+        self.max_episode_steps = int(max_episode_steps)
+        self.action_mode = action_mode
+        self.future_frames = tuple(int(o) for o in future_frames)
+        self.fall_drop = float(fall_height_fraction) * ch.standing_height
+        self.sim = BatchSim(ch, n, nthread=nthread)
+        self.dt = 1.0 / ch.control_hz
+        jn, e = ch.num_joints, len(ch.end_effectors)
+        self.num_joints, self.num_ee = jn, e
+        self.joint_low = np.array([j.range[0] for j in ch.joints])
+        self.joint_high = np.array([j.range[1] for j in ch.joints])
+
+        # Reference data. Rewards compare the simulator's frame features with features computed
+        # from the library's world-frame arrays by the same function; the context shows m_t as
+        # the library stores it (they agree when the library follows its documented layout).
+        lib = library
+        self.ref_frames = frame_features(
+            lib.root_pos, lib.root_quat, lib.root_lin_vel, lib.root_ang_vel, lib.joint_pos,
+            lib.joint_vel, lib.ee_pos, lib.ee_quat, lib.ee_lin_vel,
+        )  # fmt: skip
+        self.frame_mismatch = float(np.max(np.abs(self.ref_frames - lib.frames))) if lib.num_frames else 0.0
+        if self.frame_mismatch > 1e-3:
+            warnings.warn(
+                f"motion library frames differ from the world-frame arrays by up to "
+                f"{self.frame_mismatch:.3g}; rewards use the world-frame arrays",
+                stacklevel=2,
+            )
+        self.context_frames = np.asarray(lib.frames, dtype=np.float32)
+        self.latents = np.asarray(lib.z, dtype=np.float32)
+        self.clip_starts = lib.starts
+        self.clip_ends = lib.starts + lib.lengths
+        self.valid_clips = np.flatnonzero(lib.lengths >= 2)
+        if len(self.valid_clips) == 0:
+            raise AmorError("motion library has no clip with at least 2 frames")
+
+        d, lat = frame_dim(jn, e), lib.latent_dim
+        self.frame_dim = d
+        self.obs_layout: dict[str, slice] = {}
+        o = 0
+        for name, size in (
+            ("proprio", d),
+            ("prev_targets", 2 * jn),
+            ("ref_frame", d),
+            ("latent", lat),
+            ("future_frames", d * len(self.future_frames)),
+            ("weights", m),
+        ):
+            self.obs_layout[name] = slice(o, o + size)
+            o += size
+        self.obs_dim = o
+        self.action_dim = jn
+
+        self._rng = np.random.default_rng(seed)
+        self.ref_idx = np.zeros(n, dtype=np.int64)  # frame the current state corresponds to
+        self.clip_end = np.zeros(n, dtype=np.int64)  # exclusive end of that frame's clip
+        self.clip_id = np.zeros(n, dtype=np.int64)
+        self.episode_steps = np.zeros(n, dtype=np.int64)
+        self._weights = np.zeros((n, m), dtype=np.float32)
+        self.target_prev = np.zeros((n, jn))  # a_{t-1}
+        self.target_prev2 = np.zeros((n, jn))  # a_{t-2}
+        self.joint_vel_prev = np.zeros((n, jn))
+        self.ee_pos = np.zeros((n, e, 3))
+        self.ee_quat = np.zeros((n, e, 4))
+        self.ee_lin_vel = np.zeros((n, e, 3))
+        self.diverged_total = 0
+
+    # --- VectorEnv API ----------------------------------------------------------------------------
+
+    @property
+    def weights(self) -> np.ndarray:
+        """[N, m] float32: each env's current episode weights."""
+        return self._weights
+
+    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start every env anew (RSI, fresh weights). Returns obs [N, obs_dim] float32, info."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        self.diverged_total = 0
+        ids = np.arange(self.num_envs)
+        self._reset_envs(ids)
+        return self._observe(), {}
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """One control step; see :class:`amorctl.vecenv.VectorEnv` for the returned arrays.
+
+        ``info`` holds ``final_obs`` [N, obs_dim], ``fell`` [N] bool (terminated by the fall
+        rule), ``diverged`` [N] bool (simulation blew up: terminated, rewards zeroed, env reset),
+        ``diverged_total`` (count since the last ``reset``) and ``clip_switched`` [N] bool.
+        """
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, self.action_dim):
+            raise AmorError(f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}")
+        nxt = self.ref_idx + 1  # the frame this step should reach (the context's target)
+        target = actions if self.action_mode == "absolute" else self.library.joint_pos[nxt] + actions
+        target = np.clip(target, self.joint_low, self.joint_high)
+
+        out = self.sim.step(target)
+        self.ee_pos, self.ee_quat, self.ee_lin_vel = out.ee_pos.copy(), out.ee_quat.copy(), out.ee_lin_vel.copy()
+        sim_frames = self._sim_frames()
+        ref_frames = self.ref_frames[nxt]
+        joint_vel = self.sim.joint_vel()
+        inputs = TrackingInputs(
+            sim=split_frame(sim_frames, self.num_joints, self.num_ee),
+            ref=split_frame(ref_frames, self.num_joints, self.num_ee),
+            torque=out.torque,
+            pd_target=target,
+            pd_target_prev=self.target_prev,
+            pd_target_prev2=self.target_prev2,
+            joint_acc=(joint_vel - self.joint_vel_prev) / self.dt,
+        )
+        with np.errstate(invalid="ignore", over="ignore"):
+            fell = sim_frames[:, 0] < ref_frames[:, 0] - self.fall_drop
+            diverged = out.diverged
+            terminated = fell | diverged
+            rewards = self.objectives(inputs, (~terminated).astype(np.float64))
+        rewards = np.where(diverged[:, None], 0.0, rewards).astype(np.float32)
+
+        self.episode_steps += 1
+        truncated = (self.episode_steps >= self.max_episode_steps) & ~terminated
+        self.target_prev2, self.target_prev = self.target_prev, target
+        self.joint_vel_prev = joint_vel.copy()
+        self.ref_idx = nxt
+        switched = nxt >= self.clip_end - 1  # reached its clip's last frame: continue on a new clip
+        if switched.any():
+            self._start_clips(np.flatnonzero(switched), at_start=True)
+
+        obs = self._observe(sim_frames)
+        final_obs = obs.copy()
+        done = np.flatnonzero(terminated | truncated)
+        if len(done):
+            self._reset_envs(done)
+            obs[done] = self._observe(ids=done)
+            final_obs[np.flatnonzero(diverged)] = obs[np.flatnonzero(diverged)]
+            self.diverged_total += int(diverged.sum())
+        info = {
+            "final_obs": final_obs,
+            "fell": fell & ~diverged,
+            "diverged": diverged,
+            "diverged_total": self.diverged_total,
+            "clip_switched": switched,
+        }
+        return obs, rewards, terminated, truncated, info
+
+    def close(self) -> None:
+        """Release the simulation's thread pool."""
+        self.sim.close()
+
+    # --- internals --------------------------------------------------------------------------------
+
+    def _start_clips(self, ids: np.ndarray, at_start: bool) -> None:
+        """Point envs ``ids`` at a random clip: its first frame, or a random frame but the last."""
+        clips = self.valid_clips[self._rng.integers(len(self.valid_clips), size=len(ids))]
+        start, end = self.clip_starts[clips], self.clip_ends[clips]
+        offset = 0 if at_start else self._rng.integers(0, end - start - 1)
+        self.clip_id[ids] = clips
+        self.clip_end[ids] = end
+        self.ref_idx[ids] = start + offset
+
+    def _reset_envs(self, ids: np.ndarray) -> None:
+        """RSI and fresh weights for envs ``ids`` [k]."""
+        self._start_clips(ids, at_start=False)
+        f = self.ref_idx[ids]
+        lib = self.library
+        self.sim.set_state(
+            ids, lib.root_pos[f], lib.root_quat[f], lib.root_lin_vel[f], lib.root_ang_vel[f],
+            lib.joint_pos[f], lib.joint_vel[f],
+        )  # fmt: skip
+        self.ee_pos[ids] = lib.ee_pos[f]
+        self.ee_quat[ids] = lib.ee_quat[f]
+        self.ee_lin_vel[ids] = lib.ee_lin_vel[f]
+        self.target_prev[ids] = lib.joint_pos[f]
+        self.target_prev2[ids] = lib.joint_pos[f]
+        self.joint_vel_prev[ids] = lib.joint_vel[f]
+        self.episode_steps[ids] = 0
+        if self.fixed_weights is not None:
+            self._weights[ids] = self.fixed_weights
+        else:
+            self._weights[ids] = sample_weights(self._rng, len(ids), self.m)
+
+    def _sim_frames(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """[k, D] heading-frame features of the simulated state."""
+        s = self.sim
+        return frame_features(
+            s.root_pos()[ids], s.root_quat()[ids], s.root_lin_vel()[ids], s.root_ang_vel()[ids],
+            s.joint_pos()[ids], s.joint_vel()[ids], self.ee_pos[ids], self.ee_quat[ids],
+            self.ee_lin_vel[ids],
+        )  # fmt: skip
+
+    def _observe(self, sim_frames: np.ndarray | None = None, ids: np.ndarray | None = None) -> np.ndarray:
+        """Observations [k, obs_dim] float32 of envs ``ids`` (all when None)."""
+        sel = slice(None) if ids is None else ids
+        if sim_frames is None:
+            sim_frames = self._sim_frames(sel)
+        nxt = self.ref_idx[sel] + 1
+        parts = [
+            sim_frames,
+            self.target_prev[sel],
+            self.target_prev2[sel],
+            self.context_frames[nxt],
+            self.latents[nxt],
+        ]
+        last = self.clip_end[sel] - 1
+        parts += [self.context_frames[np.minimum(nxt + o, last)] for o in self.future_frames]
+        parts.append(self._weights[sel])
+        return np.concatenate(parts, axis=-1, dtype=np.float32)
+
+
+def sample_weights(rng: np.random.Generator, k: int, m: int) -> np.ndarray:
+    """k weight vectors ~ Dirichlet(1, ..., 1) on the m-simplex. Returns [k, m] float32."""
+    return rng.dirichlet(np.ones(m), size=k).astype(np.float32)
+
+
+def _check_weights(w: np.ndarray, m: int) -> np.ndarray:
+    w = np.asarray(w, dtype=np.float64).reshape(-1)
+    if w.shape != (m,) or not np.isfinite(w).all() or (w < 0).any() or abs(w.sum() - 1.0) > 1e-4:
+        raise AmorError(f"fixed weights must be {m} non-negative numbers summing to 1, got {w.tolist()}")
+    return w.astype(np.float32)
+
+
+def _check_library(ch: CharacterSpec, lib: MotionLibrary) -> None:
+    if lib.character != ch.name:
+        raise AmorError(f"motion library is for character {lib.character!r}, not {ch.name!r}")
+    if tuple(lib.joint_names) != ch.joint_names():
+        raise AmorError(f"motion library joints do not match character {ch.name!r}'s joint order")
+    if tuple(lib.end_effectors) != tuple(ch.end_effectors):
+        raise AmorError(f"motion library end effectors do not match character {ch.name!r}'s")
+    if lib.fps != ch.control_hz:
+        raise AmorError(f"motion library is at {lib.fps} fps; character {ch.name!r} runs at {ch.control_hz} Hz")

@@ -1,0 +1,151 @@
+"""What a tracking environment hands to an objective set, and the frame vector both sides share.
+
+The paper's frame ``m_t = (h, θ, v, q, q̇, p, ṗ)`` is a flat vector laid out as
+:class:`amorctl.motion.clips.MotionLibrary` documents (all in the root's heading frame):
+``h [1], root_rot6d [6], root_vel [6] (linear then angular), joint_pos [J], joint_vel [J],
+ee_pose [E*9] (per effector: position relative to the root, then 6D rotation), ee_vel [E*3]``.
+:func:`frame_features` computes it from world-frame state (the simulator's or the motion
+library's), :func:`split_frame` cuts it into named parts, and an objective set receives a
+:class:`TrackingInputs` holding the simulated and the reference parts plus the actuation history.
+
+All functions take the array namespace ``xp`` (numpy or jax.numpy).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from amorctl.geometry import heading_quat_inv, quat_mul, quat_rotate, quat_to_6d
+
+
+def frame_dim(num_joints: int, num_ee: int) -> int:
+    """D, the length of a frame vector for J joints and E end effectors."""
+    return 1 + 6 + 6 + 2 * num_joints + 12 * num_ee
+
+
+@dataclass(frozen=True)
+class FrameParts:
+    """A frame vector cut into named parts (all heading-frame quantities).
+
+    Shapes (N = batch): h [N], root_rot6d [N, 6], root_lin_vel [N, 3], root_ang_vel [N, 3],
+    joint_pos [N, J], joint_vel [N, J], ee_pos [N, E, 3], ee_rot6d [N, E, 6], ee_vel [N, E, 3].
+    """
+
+    h: Any
+    root_rot6d: Any
+    root_lin_vel: Any
+    root_ang_vel: Any
+    joint_pos: Any
+    joint_vel: Any
+    ee_pos: Any
+    ee_rot6d: Any
+    ee_vel: Any
+
+
+def split_frame(frames: Any, num_joints: int, num_ee: int, xp: Any = np) -> FrameParts:
+    """Cut flat frames [N, D] into :class:`FrameParts` (views, no copies in numpy)."""
+    j, e, n = num_joints, num_ee, frames.shape[0]
+    o = 13
+    pose = xp.reshape(frames[:, o + 2 * j : o + 2 * j + 9 * e], (n, e, 9))
+    return FrameParts(
+        h=frames[:, 0],
+        root_rot6d=frames[:, 1:7],
+        root_lin_vel=frames[:, 7:10],
+        root_ang_vel=frames[:, 10:13],
+        joint_pos=frames[:, o : o + j],
+        joint_vel=frames[:, o + j : o + 2 * j],
+        ee_pos=pose[:, :, :3],
+        ee_rot6d=pose[:, :, 3:],
+        ee_vel=xp.reshape(frames[:, o + 2 * j + 9 * e :], (n, e, 3)),
+    )
+
+
+def frame_features(
+    root_pos: Any,
+    root_quat: Any,
+    root_lin_vel: Any,
+    root_ang_vel: Any,
+    joint_pos: Any,
+    joint_vel: Any,
+    ee_pos: Any,
+    ee_quat: Any,
+    ee_lin_vel: Any,
+    xp: Any = np,
+) -> Any:
+    """The heading-frame frame vector m_t from world-frame state.
+
+    Args:
+        root_pos: [N, 3] world root position (z up; the ground is z = 0), m.
+        root_quat: [N, 4] world root orientation (w, x, y, z).
+        root_lin_vel: [N, 3] world root linear velocity, m/s.
+        root_ang_vel: [N, 3] world root angular velocity, rad/s.
+        joint_pos: [N, J] rad.  joint_vel: [N, J] rad/s.
+        ee_pos: [N, E, 3] world end-effector positions.  ee_quat: [N, E, 4] world orientations.
+        ee_lin_vel: [N, E, 3] world end-effector linear velocities.
+    Returns:
+        [N, D] frames, D = 13 + 2J + 12E, laid out as the module docstring says.
+    """
+    n, e = ee_pos.shape[0], ee_pos.shape[1]
+    hinv = heading_quat_inv(root_quat, xp)  # [N, 4]
+    hinv_e = xp.broadcast_to(hinv[:, None, :], (n, e, 4))
+    root_rot6d = quat_to_6d(quat_mul(hinv, root_quat, xp), xp)
+    lin = quat_rotate(hinv, root_lin_vel, xp)
+    ang = quat_rotate(hinv, root_ang_vel, xp)
+    rel_pos = quat_rotate(hinv_e, ee_pos - root_pos[:, None, :], xp)
+    rel_rot = quat_to_6d(quat_mul(hinv_e, ee_quat, xp), xp)
+    rel_vel = quat_rotate(hinv_e, ee_lin_vel - root_lin_vel[:, None, :], xp)
+    pose = xp.concatenate([rel_pos, rel_rot], axis=-1)
+    return xp.concatenate(
+        [
+            root_pos[:, 2:3],
+            root_rot6d,
+            lin,
+            ang,
+            joint_pos,
+            joint_vel,
+            xp.reshape(pose, (n, 9 * e)),
+            xp.reshape(rel_vel, (n, 3 * e)),
+        ],
+        axis=-1,
+    )
+
+
+@dataclass(frozen=True)
+class TrackingInputs:
+    """Everything an objective set may read for one transition (s_t, a_t, s_{t+1}, c_t).
+
+    ``sim`` is the simulated state after the step, ``ref`` the reference frame it should match.
+    Actuation (J = actuated joints, S = physics substeps per control step):
+        torque [N, S, J] joint torques of every substep, N·m;
+        pd_target [N, J] this step's PD targets a_t; pd_target_prev [N, J] a_{t-1};
+        pd_target_prev2 [N, J] a_{t-2} (rad; at an episode start the history is the initial pose);
+        joint_acc [N, J] (q̇_{t+1} - q̇_t) / Δt_control, rad/s².
+    """
+
+    sim: FrameParts
+    ref: FrameParts
+    torque: Any
+    pd_target: Any
+    pd_target_prev: Any
+    pd_target_prev2: Any
+    joint_acc: Any
+
+
+class ObjectiveFunction(Protocol):
+    """What ``ObjectiveSetSpec.make(character)`` returns for the tracking environment.
+
+    ``names``/``descriptions`` index the m objectives; ``low``/``high`` [m] bound one step's
+    reward; calling it returns r [N, m] (weights are never applied here).
+    """
+
+    names: tuple[str, ...]
+    descriptions: tuple[str, ...]
+    low: np.ndarray
+    high: np.ndarray
+
+    def __call__(self, inputs: TrackingInputs, alive: Any, xp: Any = np) -> Any:
+        """r [N, m] for one transition; ``alive`` [N] is 1.0 where the step did not terminate."""
+        ...

@@ -1,0 +1,186 @@
+"""Key-point inverse kinematics retargeting (any humanoid source -> e.g. ``biped20``), with ``mink``.
+
+Method, per clip (all at the control rate):
+
+1. Scale: s = target leg length / source leg length, each the vertical distance from the root key
+   point to the mean foot key point in the zero pose. Every source key point is scaled about the
+   world origin (so strides scale too), then shifted vertically so that the source's feet at their
+   contact height land at the target's foot-origin height above its soles.
+2. Contacts: a foot is in contact while its source key point is within ``CONTACT_HEIGHT`` of the
+   clip's contact level and moves slower than ``CONTACT_SPEED`` horizontally (source units). Over
+   each contact run the foot target is pinned to the run's mean position on the floor level, which
+   removes foot sliding from the targets.
+3. IK: differential IK with ``mink`` (QP solver daqp) per frame, warm-started from the previous
+   frame: root position and orientation, feet position and orientation (kept flat on the ground
+   plane, turned to the source foot's heading: a robot's feet are long relative to its legs, and
+   a pitched foot would go through the floor), hands and head position,
+   a weak posture task towards the character's standing pose, and the joint limits.
+4. Floor: the root is lifted wherever collision geometry dips below z = 0
+   (:func:`amorctl.motion.retarget.lift_to_floor`).
+
+The reported retargeting error is the mean distance between the character's key-point bodies and
+the scaled (unpinned) source key points; the foot sliding before and after is recorded as well.
+"""
+
+from __future__ import annotations
+
+import mink
+import mujoco
+import numpy as np
+
+from amorctl.geometry import heading_angle, quat_mul, yaw_quat
+from amorctl.motion.kinematics import CharacterKinematics
+from amorctl.motion.retarget import finish
+from amorctl.motion.source import CharacterMotion, SourceMotion, forward_kinematics, keypoint_positions
+
+CONTACT_HEIGHT = 0.03  # m above the clip's contact level (source units)
+CONTACT_SPEED = 0.4  # m/s horizontal (source units)
+COSTS = {  # key point -> (position cost, orientation cost)
+    "root": (5.0, 2.0),
+    "left_foot": (20.0, 2.0),
+    "right_foot": (20.0, 2.0),
+    "left_hand": (1.0, 0.0),
+    "right_hand": (1.0, 0.0),
+    "head": (0.5, 0.0),
+}
+POSTURE_COST = 0.05
+DAMPING = 1e-3
+IK_DT = 1.0  # integration step of the differential IK (unitless: one full step per iteration)
+ITERATIONS_FIRST = 50
+ITERATIONS = 10
+FEET = ("left_foot", "right_foot")
+
+
+def source_leg_length(motion: SourceMotion) -> float:
+    """Vertical root-to-feet distance of the source skeleton in its zero pose (m)."""
+    skel = motion.skeleton
+    zero = np.zeros((1, len(skel.names), 4))
+    zero[..., 0] = 1.0
+    rest = SourceMotion(**{**motion.__dict__, "root_pos": np.zeros((1, 3)), "local_quat": zero})
+    kp = keypoint_positions(rest)
+    return float(kp["root"][0, 2] - 0.5 * (kp["left_foot"][0, 2] + kp["right_foot"][0, 2]))
+
+
+def target_geometry(kin: CharacterKinematics) -> tuple[float, float, dict[str, np.ndarray]]:
+    """(leg length, foot-origin height above the sole, zero-pose key-point orientations relative
+    to the root) of the character."""
+    m, d = kin.model, kin.data
+    d.qpos[:] = m.qpos0
+    mujoco.mj_kinematics(m, d)
+    kp = kin.spec.keypoints
+    root = d.xpos[kin.body_id(kp["root"])]
+    feet = [d.xpos[kin.body_id(kp[f])] for f in FEET]
+    leg = float(root[2] - 0.5 * (feet[0][2] + feet[1][2]))
+    foot_bodies = {kin.body_id(kp[f]) for f in FEET}
+    sole = []
+    for g in range(m.ngeom):
+        if m.geom_bodyid[g] in foot_bodies or m.body_parentid[m.geom_bodyid[g]] in foot_bodies:
+            sole.append(kin._geom_bottom(g))
+    foot_height = float(feet[0][2] - min(sole)) if sole else 0.0
+    rest = {k: d.xquat[kin.body_id(b)].copy() for k, b in kp.items()}
+    return leg, foot_height, rest
+
+
+def contact_mask(pos: np.ndarray, fps: float) -> np.ndarray:
+    """[T] bool: the foot key point [T, 3] is low and slow (source units)."""
+    level = np.percentile(pos[:, 2], 5)
+    speed = np.zeros(pos.shape[0])
+    if pos.shape[0] > 1:
+        v = np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=-1) * fps
+        speed = np.concatenate([v[:1], np.minimum(v[1:], v[:-1]), v[-1:]]) if v.size > 1 else np.repeat(v, 2)
+    return (pos[:, 2] - level < CONTACT_HEIGHT) & (speed < CONTACT_SPEED)
+
+
+def pin_contacts(target: np.ndarray, contact: np.ndarray, floor_z: float) -> np.ndarray:
+    """Foot targets [T, 3] with every contact run held at its mean xy and at ``floor_z``."""
+    out = target.copy()
+    t = 0
+    while t < len(contact):
+        if not contact[t]:
+            t += 1
+            continue
+        end = t
+        while end < len(contact) and contact[end]:
+            end += 1
+        out[t:end, :2] = target[t:end, :2].mean(axis=0)
+        out[t:end, 2] = floor_z
+        t = end
+    return out
+
+
+def sliding(pos: np.ndarray, contact: np.ndarray, fps: float) -> float:
+    """Mean horizontal speed (m/s) of a foot [T, 3] over consecutive contact frames."""
+    both = contact[1:] & contact[:-1]
+    if not both.any():
+        return 0.0
+    v = np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=-1) * fps
+    return float(v[both].mean())
+
+
+def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
+    """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK."""
+    fps = 1.0 / float(motion.times[1] - motion.times[0]) if motion.times.size > 1 else float(kin.spec.control_hz)
+    leg_t, foot_h, rest = target_geometry(kin)
+    scale = leg_t / source_leg_length(motion)
+    src = keypoint_positions(motion)
+    _, jquat = forward_kinematics(motion.skeleton, motion.root_pos, motion.local_quat)
+    src_quat = {k: jquat[:, motion.skeleton.index(j)] for k, (j, _) in motion.skeleton.keypoints.items()}
+    for f in FEET:  # feet stay flat, turned to the source foot's heading
+        src_quat[f] = yaw_quat(heading_angle(src_quat[f]))
+    contact_level = min(np.percentile(src[f][:, 2], 5) for f in FEET)
+    dz = foot_h - scale * contact_level
+    scaled = {k: v * scale + np.array([0.0, 0.0, dz]) for k, v in src.items()}
+    contacts = {f: contact_mask(src[f], fps) for f in FEET}
+    targets = dict(scaled)
+    for f in FEET:
+        targets[f] = pin_contacts(scaled[f], contacts[f], foot_h)
+
+    model = kin.model
+    config = mink.Configuration(model)
+    tasks: dict[str, mink.FrameTask] = {}
+    for key, (pc, oc) in COSTS.items():
+        if key in kin.spec.keypoints:
+            tasks[key] = mink.FrameTask(kin.spec.keypoints[key], "body", position_cost=pc, orientation_cost=oc)
+    posture = mink.PostureTask(model, cost=POSTURE_COST)
+    q0 = model.qpos0.copy()
+    for name, angle in kin.spec.standing_pose.items():
+        q0[kin.joint_qpos[kin.spec.joint_names().index(name)]] = angle
+    q0[kin.root_qpos : kin.root_qpos + 3] = targets["root"][0]
+    q0[kin.root_qpos + 3 : kin.root_qpos + 7] = src_quat["root"][0]
+    posture.set_target(q0)
+    config.update(q0)
+    limits = [mink.ConfigurationLimit(model)]
+    all_tasks = [*tasks.values(), posture]
+
+    num_frames = motion.times.shape[0]
+    qpos = np.zeros((num_frames, model.nq))
+    for t in range(num_frames):
+        for key, task in tasks.items():
+            quat = quat_mul(src_quat[key][t], rest[key]) if key in src_quat else rest[key]
+            task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3(quat), targets[key][t]))
+        for _ in range(ITERATIONS_FIRST if t == 0 else ITERATIONS):
+            vel = mink.solve_ik(config, all_tasks, IK_DT, solver="daqp", damping=DAMPING, limits=limits)
+            config.integrate_inplace(vel, IK_DT)
+        qpos[t] = config.q
+    r = kin.root_qpos
+    out = CharacterMotion(
+        name=motion.name,
+        source=motion.source,
+        sha256=motion.sha256,
+        licence=motion.licence,
+        character=kin.spec.name,
+        times=motion.times,
+        root_pos=qpos[:, r : r + 3].copy(),
+        root_quat=qpos[:, r + 3 : r + 7].copy(),
+        joint_pos=qpos[:, kin.joint_qpos].copy(),
+        source_fps=motion.source_fps,
+        stats={"method": "ik", "scale": scale},
+    )
+    out = finish(out, motion, kin, lift=True, targets=scaled)
+    feet_pos, _ = kin.body_poses(kin.qpos(out.root_pos, out.root_quat, out.joint_pos),
+                                 [kin.spec.keypoints[f] for f in FEET])
+    stats = dict(out.stats)
+    stats["foot_sliding_source"] = float(np.mean([sliding(scaled[f], contacts[f], fps) for f in FEET]))
+    stats["foot_sliding"] = float(np.mean([sliding(feet_pos[:, i], contacts[f], fps) for i, f in enumerate(FEET)]))
+    stats["contact_fraction"] = float(np.mean([contacts[f].mean() for f in FEET]))
+    return CharacterMotion(**{**out.__dict__, "stats": stats})

@@ -1,0 +1,1 @@
+"""Backend plugins (torch-cpu; jax-mjx later)."""

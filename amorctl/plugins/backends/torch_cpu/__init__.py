@@ -1,0 +1,97 @@
+"""The ``torch-cpu`` backend plugin: MuJoCo (C, threaded) for physics, PyTorch on the CPU for MOPPO.
+
+``BackendSpec.make()`` returns a :class:`TorchCpuBackend`, which makes the motion-tracking env
+(``make_env``) and the MOPPO trainer (``make_trainer``, implementing :class:`amorctl.trainer.Trainer`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from amorctl.config import TrainConfig
+from amorctl.errors import AmorError
+from amorctl.registry import hookimpl
+from amorctl.specs import BackendSpec
+from amorctl.vecenv import VectorEnv
+
+NAME = "torch-cpu"
+
+
+class TorchCpuBackend:
+    """Env and trainer factory of the torch-cpu backend."""
+
+    name = NAME
+
+    def make_env(
+        self,
+        *,
+        character: str,
+        dataset: str | Path | None = None,
+        objective_set: str = "tracking7",
+        num_envs: int = 256,
+        episode_seconds: float = 10.0,
+        seed: int = 0,
+        **options: Any,
+    ) -> VectorEnv:
+        """The motion-tracking env for ``character`` on ``dataset`` (default: the built-in clips,
+        preprocessed into a cache on first use). Extra ``options`` go to the env's constructor."""
+        from amorctl.envs.tracking_env import TrackingEnv
+        from amorctl.registry import get_registry
+
+        spec = get_registry().character(character)  # unknown names fail here, clearly
+        library = _load_library(character, dataset)
+        steps = max(1, round(episode_seconds * spec.control_hz))
+        return TrackingEnv(spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps,
+                           seed=seed, **options)
+
+    def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:
+        """A :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer` for ``env``."""
+        from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
+
+        if config.run.threads > 0:
+            torch.set_num_threads(config.run.threads)
+        if config.ppo.bf16 and not bf16_supported():
+            raise AmorError("[ppo] bf16 = true, but this CPU has no native bf16 support (AVX512-BF16 or AMX)")
+        return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed)
+
+
+def bf16_supported() -> bool:
+    """Whether the CPU runs bf16 matrix products natively (AVX512-BF16 / AMX), per /proc/cpuinfo."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def _load_library(character: str, dataset: str | Path | None) -> Any:
+    """The motion library to track: ``dataset`` if given, else the character's default dataset."""
+    from amorctl import motion
+
+    path = Path(dataset) if dataset else None
+    if path is None:
+        default_dataset = getattr(motion, "default_dataset", None)
+        if default_dataset is None:
+            from importlib import import_module
+
+            default_dataset = import_module("amorctl.motion.dataset").default_dataset
+        path = default_dataset(character)
+    if not path.is_file():
+        raise AmorError(f"{path}: motion dataset not found")
+    from importlib import import_module
+
+    load = import_module("amorctl.motion.dataset").load_dataset
+    library = load(path)
+    if library.character != character:
+        raise AmorError(f"{path}: dataset is for character {library.character!r}, not {character!r}")
+    return library
+
+
+@hookimpl
+def amorctl_register_backends(register: Any) -> None:
+    """Register ``torch-cpu``."""
+    register(BackendSpec(name=NAME, description="MuJoCo C physics + PyTorch MOPPO on the CPU",
+                         make=TorchCpuBackend))

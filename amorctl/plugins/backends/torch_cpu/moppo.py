@@ -1,0 +1,413 @@
+"""MOPPO (the AMOR paper, Section 4) on PyTorch, CPU. One file, read top to bottom.
+
+Per iteration:
+
+1. **Rollout**: T steps of N envs. The actor ``pi(a | s, c, w)`` samples Gaussian actions; the
+   critic ``V(s, c, w)`` gives m values per state. Each env's weights ``w`` (Dirichlet(1) per
+   episode, the last m observation entries) are recorded per step. Truncated episodes store
+   ``V(final_obs)`` to bootstrap from.
+2. **Returns**: GAE per objective over ``[T, N, m]`` (:func:`gae.gae`).
+3. **Update**: ``num_epochs`` passes over shuffled minibatches. The vector advantage is scalarized
+   per sample as ``A·w``, normalized with the minibatch's mean and std, and drives the PPO
+   clipped surrogate; the value loss is the (optionally clipped) squared error over all m
+   critic outputs; an entropy bonus; one Adam step on the sum with global gradient clipping. The
+   learning rate optionally adapts to keep the KL near ``desired_kl`` (as rsl_rl does).
+4. **Normalizer**: the running observation mean/std is frozen during an iteration (so the rollout
+   and the update see the same inputs) and folds in the iteration's observations at its end.
+
+Shapes: T = ``num_steps``, N = envs, D = obs dim, A = action dim, m = objectives, B = T·N.
+bf16: network forward/backward run under CPU autocast; weights, the Gaussian log-probabilities,
+the ratio and all losses stay float32.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from amorctl.config import NetworkConfig, PPOConfig
+from amorctl.errors import AmorError
+from amorctl.plugins.backends.torch_cpu.gae import gae
+from amorctl.plugins.backends.torch_cpu.networks import (
+    Actor,
+    Critic,
+    RunningNormalizer,
+    gaussian_entropy,
+    gaussian_log_prob,
+)
+from amorctl.trainer import State
+from amorctl.vecenv import VectorEnv
+
+EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
+
+
+@dataclass
+class Batch:
+    """One rollout, flattened to B = T·N samples (``rewards``/``values`` keep [T, N, m] views)."""
+
+    obs: torch.Tensor  # [B, D] raw observations (normalized inside the networks' call)
+    actions: torch.Tensor  # [B, A]
+    log_probs: torch.Tensor  # [B] log pi_old(a | s)
+    means: torch.Tensor  # [B, A] pi_old's action means (for the analytic KL)
+    values: torch.Tensor  # [B, m] V_old(s)
+    weights: torch.Tensor  # [B, m] each sample's episode weights
+    rewards: torch.Tensor  # [T, N, m]
+    next_values: torch.Tensor  # [T, N, m] V(s_{t+1}): next rollout value, or V(final_obs) if truncated
+    terminated: torch.Tensor  # [T, N] bool
+    truncated: torch.Tensor  # [T, N] bool
+    old_log_std: torch.Tensor  # [A]
+    advantages: torch.Tensor | None = None  # [B, m] per-objective GAE (set by compute_returns)
+    returns: torch.Tensor | None = None  # [B, m] value targets (set by compute_returns)
+
+
+class MOPPOTrainer:
+    """MOPPO for any :class:`~amorctl.vecenv.VectorEnv`; implements :class:`amorctl.trainer.Trainer`."""
+
+    def __init__(self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int) -> None:
+        self.env = env
+        self.cfg = ppo
+        self.names = tuple(env.reward_space.names)
+        self.num_objectives = len(self.names)
+        self.iteration_count = 0
+        self.env_steps = 0
+        self.learning_rate = ppo.learning_rate
+        self.generator = torch.Generator().manual_seed(seed)  # action noise and minibatch order
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            self.actor = Actor(env.obs_dim, env.action_dim, network.actor_hidden, network.init_std)
+            self.critic = Critic(env.obs_dim, self.num_objectives, network.critic_hidden)
+        self.normalizer = RunningNormalizer(env.obs_dim, clip=network.obs_clip)
+        self.params = [*self.actor.parameters(), *self.critic.parameters()]
+        self.optimizer = torch.optim.Adam(self.params, lr=self.learning_rate)
+
+        obs, _ = env.reset(seed=seed)
+        self.obs = torch.as_tensor(obs, dtype=torch.float32)  # [N, D] the current observations
+        if ppo.normalize_obs:
+            self.normalizer.update(self.obs)  # first estimate from the reset states
+        n, m = env.num_envs, self.num_objectives
+        self.ep_return = torch.zeros(n, m, dtype=torch.float64)  # running per-objective sums
+        self.ep_scalar = torch.zeros(n, dtype=torch.float64)  # running sum of r·w
+        self.ep_length = torch.zeros(n, dtype=torch.int64)
+        self.recent_return = torch.full((EPISODE_WINDOW, m), float("nan"), dtype=torch.float64)
+        self.recent_scalar = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
+        self.recent_length = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
+        self.recent_survived = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
+        self.recent_ptr = 0
+        self.episodes = 0
+
+    def reset_env(self, seed: int) -> None:
+        """Restart every env episode with ``seed``; running episode sums start from zero."""
+        obs, _ = self.env.reset(seed=seed)
+        self.obs = torch.as_tensor(obs, dtype=torch.float32)
+        self.ep_return.zero_()
+        self.ep_scalar.zero_()
+        self.ep_length.zero_()
+
+    # ------------------------------------------------------------------ networks
+    def _autocast(self) -> contextlib.AbstractContextManager[Any]:
+        if self.cfg.bf16:
+            return torch.autocast("cpu", dtype=torch.bfloat16)
+        return contextlib.nullcontext()
+
+    def _forward(self, obs: torch.Tensor, critic: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Raw obs [B, D] -> (action mean [B, A], values [B, m] or None), float32 outputs."""
+        x = self.normalizer(obs)
+        with self._autocast():
+            mean = self.actor(x)
+            values = self.critic(x) if critic else None
+        return mean.float(), (values.float() if values is not None else None)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        """Actions [N, A] for raw observations [N, D] (the Gaussian mean when deterministic)."""
+        mean, _ = self._forward(torch.as_tensor(obs, dtype=torch.float32), critic=False)
+        if not deterministic:
+            mean = mean + torch.exp(self.actor.log_std) * torch.randn(mean.shape, generator=self.generator)
+        return mean.numpy()
+
+    @torch.no_grad()
+    def values(self, obs: np.ndarray) -> np.ndarray:
+        """Critic values [N, m] for raw observations [N, D]."""
+        _, v = self._forward(torch.as_tensor(obs, dtype=torch.float32))
+        assert v is not None
+        return v.numpy()
+
+    # ------------------------------------------------------------------ 1. rollout
+    @torch.no_grad()
+    def collect_rollout(self) -> tuple[Batch, dict[str, float]]:
+        """Step the envs ``num_steps`` times with the current policy; returns the batch (advantages
+        not yet filled in) and the time spent in the env and in the policy's forward passes."""
+        T, N, m = self.cfg.num_steps, self.env.num_envs, self.num_objectives
+        D, A = self.env.obs_dim, self.env.action_dim
+        obs_buf = torch.zeros(T, N, D)
+        act_buf = torch.zeros(T, N, A)
+        mean_buf = torch.zeros(T, N, A)
+        logp_buf = torch.zeros(T, N)
+        val_buf = torch.zeros(T, N, m)
+        next_val_buf = torch.zeros(T, N, m)
+        rew_buf = torch.zeros(T, N, m)
+        w_buf = torch.zeros(T, N, m)
+        term_buf = torch.zeros(T, N, dtype=torch.bool)
+        trunc_buf = torch.zeros(T, N, dtype=torch.bool)
+        std = torch.exp(self.actor.log_std)
+        t_env = t_policy = 0.0
+
+        for t in range(T):
+            t0 = time.perf_counter()
+            weights = torch.as_tensor(self.env.weights, dtype=torch.float32)  # w of this step's episode
+            mean, value = self._forward(self.obs)
+            assert value is not None
+            action = mean + std * torch.randn(mean.shape, generator=self.generator)
+            t1 = time.perf_counter()
+            obs, rewards, terminated, truncated, info = self.env.step(action.numpy())
+            t2 = time.perf_counter()
+            obs_buf[t], act_buf[t], mean_buf[t], val_buf[t], w_buf[t] = self.obs, action, mean, value, weights
+            logp_buf[t] = gaussian_log_prob(action, mean, self.actor.log_std)
+            rew_buf[t] = torch.as_tensor(rewards, dtype=torch.float32)
+            term_buf[t] = torch.as_tensor(terminated, dtype=torch.bool)
+            trunc_buf[t] = torch.as_tensor(truncated, dtype=torch.bool) & ~term_buf[t]
+            if trunc_buf[t].any():  # bootstrap time-limited episodes from V(final_obs)
+                final = torch.as_tensor(info["final_obs"], dtype=torch.float32)[trunc_buf[t]]
+                _, final_values = self._forward(final)
+                next_val_buf[t][trunc_buf[t]] = final_values
+            self._track_episodes(rew_buf[t], weights, term_buf[t], trunc_buf[t])
+            self.obs = torch.as_tensor(obs, dtype=torch.float32)
+            t_env += t2 - t1
+            t_policy += time.perf_counter() - t2 + t1 - t0
+
+        t0 = time.perf_counter()
+        _, last_values = self._forward(self.obs)  # V of the state after the rollout
+        assert last_values is not None
+        following = torch.cat([val_buf[1:], last_values[None]], dim=0)  # V(s_{t+1}) where the episode goes on
+        next_val_buf = torch.where(trunc_buf[..., None], next_val_buf, following)
+        t_policy += time.perf_counter() - t0
+        self.env_steps += T * N
+        batch = Batch(
+            obs=obs_buf.reshape(T * N, D),
+            actions=act_buf.reshape(T * N, A),
+            log_probs=logp_buf.reshape(T * N),
+            means=mean_buf.reshape(T * N, A),
+            values=val_buf.reshape(T * N, m),
+            weights=w_buf.reshape(T * N, m),
+            rewards=rew_buf,
+            next_values=next_val_buf,
+            terminated=term_buf,
+            truncated=trunc_buf,
+            old_log_std=self.actor.log_std.detach().clone(),
+        )
+        return batch, {"env": t_env, "policy": t_policy}
+
+    def _track_episodes(
+        self, rewards: torch.Tensor, weights: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor
+    ) -> None:
+        """Accumulate undiscounted per-objective episode returns; log the episodes that ended."""
+        self.ep_return += rewards.double()
+        self.ep_scalar += (rewards * weights).sum(-1).double()
+        self.ep_length += 1
+        ended = terminated | truncated
+        k = int(ended.sum())
+        if k == 0:
+            return
+        slots = (self.recent_ptr + torch.arange(k)) % EPISODE_WINDOW
+        self.recent_return[slots] = self.ep_return[ended]
+        self.recent_scalar[slots] = self.ep_scalar[ended]
+        self.recent_length[slots] = self.ep_length[ended].double()
+        self.recent_survived[slots] = (~terminated[ended]).double()
+        self.recent_ptr = int((self.recent_ptr + k) % EPISODE_WINDOW)
+        self.episodes += k
+        self.ep_return[ended] = 0.0
+        self.ep_scalar[ended] = 0.0
+        self.ep_length[ended] = 0
+
+    # ------------------------------------------------------------------ 2. returns
+    def compute_returns(self, batch: Batch) -> None:
+        """GAE per objective over [T, N, m]; fills ``batch.advantages`` and ``batch.returns`` [B, m]."""
+        T, N, m = batch.rewards.shape
+        advantages, returns = gae(
+            batch.rewards, batch.values.reshape(T, N, m), batch.next_values, batch.terminated,
+            batch.truncated, self.cfg.gamma, self.cfg.gae_lambda,
+        )
+        batch.advantages, batch.returns = advantages.reshape(T * N, m), returns.reshape(T * N, m)
+
+    # ------------------------------------------------------------------ 3. update
+    def minibatch_loss(self, batch: Batch, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The MOPPO loss on the samples ``idx`` of ``batch``; returns (loss, detached stats)."""
+        assert batch.advantages is not None and batch.returns is not None, "call compute_returns first"
+        mean, values = self._forward(batch.obs[idx])
+        assert values is not None
+        log_std = self.actor.log_std
+        log_prob = gaussian_log_prob(batch.actions[idx], mean, log_std)
+        log_ratio = log_prob - batch.log_probs[idx]
+        ratio = torch.exp(log_ratio)
+
+        # scalarize the vector advantage with each sample's own weights, normalize per minibatch
+        adv = (batch.advantages[idx] * batch.weights[idx]).sum(-1)
+        adv = (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
+        clip = self.cfg.clip_coef
+        policy_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
+
+        # value loss over all m objectives
+        returns, old_values = batch.returns[idx], batch.values[idx]
+        value_err = (values - returns) ** 2
+        if self.cfg.clip_value_loss:
+            clipped = old_values + torch.clamp(values - old_values, -clip, clip)
+            value_err = torch.max(value_err, (clipped - returns) ** 2)
+        value_loss = 0.5 * value_err.mean()
+
+        entropy = gaussian_entropy(log_std)
+        loss = policy_loss + self.cfg.value_coef * value_loss - self.cfg.entropy_coef * entropy
+
+        with torch.no_grad():
+            old_std, new_std = torch.exp(batch.old_log_std), torch.exp(log_std)
+            kl = (
+                log_std - batch.old_log_std
+                + (old_std**2 + (batch.means[idx] - mean) ** 2) / (2 * new_std**2)
+                - 0.5
+            ).sum(-1).mean()
+            stats = {
+                "loss/total": loss.detach(),
+                "loss/policy": policy_loss.detach(),
+                "loss/value": value_loss.detach(),
+                "loss/entropy": entropy.detach(),
+                "kl": kl,
+                "approx_kl": ((ratio - 1) - log_ratio).mean(),
+                "clip_fraction": ((ratio - 1).abs() > clip).float().mean(),
+            }
+        return loss, stats
+
+    def update(self, batch: Batch) -> dict[str, float]:
+        """``num_epochs`` passes of minibatch Adam steps; returns stats averaged over minibatches."""
+        size = batch.obs.shape[0]
+        sums: dict[str, float] = {}
+        count = 0
+        for _ in range(self.cfg.num_epochs):
+            order = torch.randperm(size, generator=self.generator)
+            for idx in order.tensor_split(self.cfg.num_minibatches):
+                loss, stats = self.minibatch_loss(batch, idx)
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                nn.utils.clip_grad_norm_(self.params, self.cfg.max_grad_norm)
+                self.optimizer.step()
+                if self.cfg.lr_schedule == "adaptive":
+                    self._adapt_learning_rate(float(stats["kl"]))
+                for key, value in stats.items():
+                    sums[key] = sums.get(key, 0.0) + float(value)
+                count += 1
+        return {key: value / count for key, value in sums.items()}
+
+    def _adapt_learning_rate(self, kl: float) -> None:
+        """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
+        if kl > 2.0 * self.cfg.desired_kl:
+            self.learning_rate = max(1e-5, self.learning_rate / 1.5)
+        elif 0.0 < kl < 0.5 * self.cfg.desired_kl:
+            self.learning_rate = min(1e-2, self.learning_rate * 1.5)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate
+
+    # ------------------------------------------------------------------ one iteration
+    def iteration(self) -> dict[str, float]:
+        """Rollout, returns, update, normalizer; returns this iteration's metrics."""
+        start = time.perf_counter()
+        batch, times = self.collect_rollout()
+        self.compute_returns(batch)
+        t0 = time.perf_counter()
+        stats = self.update(batch)
+        times["update"] = time.perf_counter() - t0
+        if self.cfg.normalize_obs:
+            self.normalizer.update(batch.obs)
+        self.iteration_count += 1
+        elapsed = time.perf_counter() - start
+        return self._metrics(batch, stats, times, elapsed)
+
+    def _metrics(
+        self, batch: Batch, stats: dict[str, float], times: dict[str, float], elapsed: float
+    ) -> dict[str, float]:
+        metrics: dict[str, float] = {"iteration": float(self.iteration_count), "env_steps": float(self.env_steps)}
+        metrics["env_steps_per_s"] = batch.obs.shape[0] / max(elapsed, 1e-9)
+        metrics["time/iteration_s"] = elapsed
+        metrics["time/env_frac"] = times["env"] / elapsed
+        metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
+        metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
+        metrics.update(stats)
+        metrics["learning_rate"] = self.learning_rate
+        metrics["action_std"] = float(torch.exp(self.actor.log_std.detach()).mean())
+        assert batch.returns is not None
+        filled = ~torch.isnan(self.recent_length)
+        has = bool(filled.any())
+        mean_reward = batch.rewards.mean(dim=(0, 1))
+        for i, name in enumerate(self.names):
+            metrics[f"return/{name}"] = float(self.recent_return[filled, i].mean()) if has else float("nan")
+            metrics[f"reward/{name}"] = float(mean_reward[i])
+            ret, val = batch.returns[:, i], batch.values[:, i]
+            var = ret.var()
+            metrics[f"explained_variance/{name}"] = float(1 - (ret - val).var() / var) if var > 0 else float("nan")
+        metrics["return/scalarized"] = float(self.recent_scalar[filled].mean()) if has else float("nan")
+        metrics["episode/length"] = float(self.recent_length[filled].mean()) if has else float("nan")
+        metrics["episode/survival"] = float(self.recent_survived[filled].mean()) if has else float("nan")
+        metrics["episodes"] = float(self.episodes)
+        return metrics
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> State:
+        """Weights, normalizer, Adam state, RNG, current observations and episode statistics."""
+        arrays: dict[str, np.ndarray] = {}
+        for prefix, module in (("actor", self.actor), ("critic", self.critic), ("normalizer", self.normalizer)):
+            for key, tensor in module.state_dict().items():
+                arrays[f"{prefix}.{key}"] = tensor.detach().cpu().numpy().copy()
+        optim = self.optimizer.state_dict()
+        for index, slot in optim["state"].items():
+            for key, tensor in slot.items():
+                arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
+        arrays["rng.torch"] = self.generator.get_state().numpy().copy()
+        arrays["obs"] = self.obs.numpy().copy()
+        for key in ("ep_return", "ep_scalar", "ep_length", "recent_return", "recent_scalar", "recent_length",
+                    "recent_survived"):
+            arrays[f"episodes.{key}"] = getattr(self, key).numpy().copy()
+        meta = {
+            "iteration": self.iteration_count,
+            "env_steps": self.env_steps,
+            "learning_rate": self.learning_rate,
+            "optimizer_param_groups": optim["param_groups"],
+            "optimizer_state_keys": {str(i): sorted(s) for i, s in optim["state"].items()},
+            "recent_ptr": self.recent_ptr,
+            "episodes": self.episodes,
+            "obs_dim": self.env.obs_dim,
+            "action_dim": self.env.action_dim,
+            "objectives": list(self.names),
+        }
+        return State(arrays, meta)
+
+    def load_state_dict(self, state: State) -> None:
+        """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
+        meta, arrays = state.meta, state.arrays
+        expect = {"obs_dim": self.env.obs_dim, "action_dim": self.env.action_dim, "objectives": list(self.names)}
+        for key, value in expect.items():
+            if meta.get(key) != value:
+                raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+        try:
+            for prefix, module in (("actor", self.actor), ("critic", self.critic), ("normalizer", self.normalizer)):
+                tensors = {k[len(prefix) + 1:]: torch.from_numpy(v.copy()) for k, v in arrays.items()
+                           if k.startswith(prefix + ".")}
+                module.load_state_dict(tensors, strict=True)
+            optim_state: dict[int, dict[str, torch.Tensor]] = {}
+            for index, keys in meta["optimizer_state_keys"].items():
+                optim_state[int(index)] = {k: torch.from_numpy(arrays[f"optimizer.{index}.{k}"].copy()) for k in keys}
+            self.optimizer.load_state_dict({"state": optim_state, "param_groups": meta["optimizer_param_groups"]})
+            self.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
+            self.obs = torch.from_numpy(arrays["obs"].copy())
+            for key in ("ep_return", "ep_scalar", "ep_length", "recent_return", "recent_scalar", "recent_length",
+                        "recent_survived"):
+                setattr(self, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
+        except (KeyError, RuntimeError, ValueError) as exc:
+            raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None
+        self.iteration_count = int(meta["iteration"])
+        self.env_steps = int(meta["env_steps"])
+        self.learning_rate = float(meta["learning_rate"])
+        self.recent_ptr = int(meta["recent_ptr"])
+        self.episodes = int(meta["episodes"])

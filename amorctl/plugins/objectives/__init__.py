@@ -1,0 +1,1 @@
+"""Built-in objective sets (each module is one plugin named by an entry point)."""

@@ -1,0 +1,1 @@
+"""Built-in training presets (TOML files read by :func:`amorctl.config.load_preset`)."""

@@ -1,0 +1,108 @@
+"""Env steps/s of the tracking env, and its ratio to the ideal multi-threaded physics rate.
+
+For each character and batch size the script times full ``TrackingEnv.step`` calls (physics,
+actuator model, observations, rewards, resets) while replaying the reference with a little noise,
+and, in the same run, the single-thread ``mj_step`` rate on the same model from the same states.
+The ratio is ``env steps/s / (single-thread mj_step rate / substeps * nthread)``; 1.0 would be
+perfect scaling with no glue cost. The library is synthetic (swaying clips), so no dataset is
+needed. One line per setting, ending in ``ratio: X.XX``. Run with ``nice -n 10`` on shared
+machines; figures are noisy there.
+
+    python benchmarks/env_throughput.py [--characters humanoid36 biped20] [--envs 256 1024]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import mujoco
+import numpy as np
+
+from amorctl.envs.batch_sim import STATE_SPEC
+from amorctl.envs.synthetic import synthetic_library
+from amorctl.envs.tracking_env import TrackingEnv
+from amorctl.registry import get_registry
+
+
+def single_thread_rate(env: TrackingEnv, samples: int = 48, repeats: int = 3) -> float:
+    """Physics steps/s of ``mj_step`` on one thread, from the env's current states and controls."""
+    sim = env.sim
+    m = sim.model
+    d = mujoco.MjData(m)
+    ids = np.linspace(0, env.num_envs - 1, min(samples, env.num_envs)).astype(int)
+    ctrl = sim.ctrl[:, 0].copy()
+    if sim.servo:  # motor actuators: replay the last computed servo torques
+        ctrl[:, sim.actuators] = sim.torque[:, -1] / sim.gear
+    best = 0.0
+    for _ in range(repeats):
+        elapsed = 0.0
+        for i in ids:
+            mujoco.mj_setState(m, d, sim.state[i], STATE_SPEC)
+            d.qacc_warmstart[:] = sim.warmstart[i]
+            d.ctrl[:] = ctrl[i]
+            t0 = time.perf_counter()
+            for _ in range(sim.substeps):
+                mujoco.mj_step(m, d)
+            elapsed += time.perf_counter() - t0
+        best = max(best, len(ids) * sim.substeps / elapsed)
+    return best
+
+
+def measure(character: str, num_envs: int, nthread: int, seconds: float, seed: int = 0) -> dict[str, float]:
+    """Env steps/s and the ratio for one setting."""
+    ch = get_registry().character(character)
+    lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=seed)
+    env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=seed, max_episode_steps=200)
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+
+    def act() -> np.ndarray:
+        return lib.joint_pos[env.ref_idx + 1] + 0.05 * rng.standard_normal((num_envs, env.action_dim))
+
+    for _ in range(5):
+        env.step(act())
+    base_before = single_thread_rate(env)
+    steps, resets, t0 = 0, 0, time.perf_counter()
+    actions = act()
+    while time.perf_counter() - t0 < seconds or steps < 10:
+        _, _, term, trunc, _ = env.step(actions)
+        resets += int(term.sum() + trunc.sum())
+        actions = act()
+        steps += 1
+    elapsed = time.perf_counter() - t0
+    base_after = single_thread_rate(env)
+    env.close()
+    rate = steps * num_envs / elapsed
+    single = 0.5 * (base_before + base_after)
+    ideal = single / ch.substeps * nthread
+    return {
+        "env_steps_per_s": rate,
+        "single_thread_physics_per_s": single,
+        "ideal_env_steps_per_s": ideal,
+        "resets_per_step": resets / steps,
+        "ratio": rate / ideal,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--characters", nargs="+", default=["humanoid36", "biped20"])
+    parser.add_argument("--envs", nargs="+", type=int, default=[256, 1024])
+    parser.add_argument("--nthread", type=int, default=2)
+    parser.add_argument("--seconds", type=float, default=4.0, help="timed seconds per setting")
+    args = parser.parse_args()
+    for character in args.characters:
+        for n in args.envs:
+            r = measure(character, n, args.nthread, args.seconds)
+            print(
+                f"{character:<12} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
+                f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
+                f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
+                f"resets/step: {r['resets_per_step']:.2f}  ratio: {r['ratio']:.2f}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
