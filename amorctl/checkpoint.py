@@ -70,8 +70,11 @@ def save_checkpoint(
         **meta,
         "trainer": trainer.meta,
         "env": None if env is None else env.meta,
-        "tensors": {"file": tensors_path.name, "bytes": tensors_path.stat().st_size,
-                    "sha256": _sha256(tensors_path)},
+        "tensors": {
+            "file": tensors_path.name,
+            "bytes": tensors_path.stat().st_size,
+            "sha256": _sha256(tensors_path),
+        },
     }
     atomic_write_text(json_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
     return json_path
@@ -106,15 +109,18 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
         raise AmorError(f"{tensors_path}: checkpoint tensors file missing")
     size = tensors_path.stat().st_size
     if size != info.get("bytes"):
-        raise AmorError(f"{tensors_path}: checkpoint is truncated or altered ({size} bytes, "
-                        f"{info.get('bytes')} expected)")
+        raise AmorError(
+            f"{tensors_path}: checkpoint is truncated or altered ({size} bytes, {info.get('bytes')} expected)"
+        )
     if _sha256(tensors_path) != info.get("sha256"):
         raise AmorError(f"{tensors_path}: checkpoint content does not match its recorded SHA-256")
     try:
         arrays = load_file(str(tensors_path))
     except (SafetensorError, OSError, ValueError) as exc:
         raise AmorError(f"{tensors_path}: not a valid safetensors file: {exc}") from None
-    trainer = State({k[8:]: v for k, v in arrays.items() if k.startswith("trainer/")}, record.get("trainer") or {})
+    trainer = State(
+        {k[8:]: v for k, v in arrays.items() if k.startswith("trainer/")}, record.get("trainer") or {}
+    )
     env = None
     if record.get("env") is not None:
         env = State({k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, record["env"])

@@ -55,6 +55,7 @@ class EnvConfig:
     objective_set: str = _doc("tracking7", "objective-set plugin (kind=tracking)")
     num_envs: int = _doc(256, "environments stepped in parallel (N)")
     episode_seconds: float = _doc(10.0, "time limit of an episode in seconds (truncation, bootstrapped)")
+    action_mode: str = _doc("residual", "tracking action: residual (PD target = reference + a) or absolute")
     gym_id: str = _doc("", "Gymnasium / MO-Gymnasium id with a vector reward (kind=gym)")
     fixed_weights: str = _doc("", "empty: w ~ Dirichlet(1) per episode (MOPPO); else one fixed w (PPO)")
 
@@ -65,7 +66,7 @@ class NetworkConfig:
 
     actor_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the actor")
     critic_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the critic")
-    init_std: float = _doc(0.5, "initial standard deviation of the Gaussian actions (state-independent)")
+    init_std: float = _doc(0.2, "initial standard deviation of the Gaussian actions (state-independent)")
     obs_clip: float = _doc(10.0, "normalized observations are clipped to [-obs_clip, obs_clip]")
 
 
@@ -83,7 +84,9 @@ class PPOConfig:
     value_coef: float = _doc(1.0, "weight of the value loss (mean over the batch and the m outputs)")
     entropy_coef: float = _doc(0.0, "weight of the entropy bonus")
     learning_rate: float = _doc(1e-3, "Adam learning rate (the start value when lr_schedule=adaptive)")
-    lr_schedule: str = _doc("adaptive", "fixed, or adaptive: scale the rate by 1.5 to keep KL near desired_kl")
+    lr_schedule: str = _doc(
+        "adaptive", "fixed, or adaptive: scale the rate by 1.5 to keep KL near desired_kl"
+    )
     desired_kl: float = _doc(0.01, "target KL per minibatch for the adaptive learning rate")
     max_grad_norm: float = _doc(1.0, "clip the global gradient norm to this")
     normalize_obs: bool = _doc(True, "running mean/std observation normalization (saved with the policy)")
@@ -104,6 +107,7 @@ SECTIONS: dict[str, type] = {"run": RunConfig, "env": EnvConfig, "network": Netw
 PRESETS: tuple[str, ...] = ("quick", "paper")
 ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
+ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
 
 
 def _coerce(value: Any, hint: Any, where: str) -> Any:
@@ -183,6 +187,7 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
         (e.num_envs >= 1, "[env] num_envs must be >= 1"),
         (e.episode_seconds > 0, "[env] episode_seconds must be > 0"),
         (e.kind != "gym" or bool(e.gym_id), "[env] gym_id is required when kind = 'gym'"),
+        (e.action_mode in ACTION_MODES, f"[env] action_mode must be one of {', '.join(ACTION_MODES)}"),
         (all(h >= 1 for h in n.actor_hidden + n.critic_hidden), "[network] layer widths must be >= 1"),
         (n.init_std > 0, "[network] init_std must be > 0"),
         (n.obs_clip > 0, "[network] obs_clip must be > 0"),

@@ -76,7 +76,9 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
     if e.kind == "toy":
         from amorctl.envs.toy import ToyTradeoffEnv
 
-        env = ToyTradeoffEnv(e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed)
+        env = ToyTradeoffEnv(
+            e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed
+        )
     elif e.kind == "gym":
         from amorctl.envs.mo_gym import make_gym_env
 
@@ -85,8 +87,13 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
         if backend is None:
             backend = get_registry().backend(config.run.backend).make()
         env = backend.make_env(
-            character=e.character, dataset=e.dataset or None, objective_set=e.objective_set,
-            num_envs=e.num_envs, episode_seconds=e.episode_seconds, seed=seed,
+            character=e.character,
+            dataset=e.dataset or None,
+            objective_set=e.objective_set,
+            num_envs=e.num_envs,
+            episode_seconds=e.episode_seconds,
+            seed=seed,
+            action_mode=e.action_mode,
         )
     if e.fixed_weights:
         from amorctl.envs.wrappers import FixedWeights
@@ -109,12 +116,16 @@ def latest_checkpoint(out: Path) -> Checkpoint:
     found = list_checkpoints(out / CHECKPOINT_DIR)
     if not found:
         raise AmorError(f"{out / CHECKPOINT_DIR}: no checkpoint to resume from")
-    iteration, path = found[-1]
+    path = found[-1][1]
     try:
         return load_checkpoint(path)
     except AmorError as err:
-        older = f"; an older checkpoint exists (iteration {found[-2][0]}): delete {path.name} and its " \
-                ".safetensors to resume from it" if len(found) > 1 else ""
+        older = (
+            f"; an older checkpoint exists (iteration {found[-2][0]}): delete {path.name} and its "
+            ".safetensors to resume from it"
+            if len(found) > 1
+            else ""
+        )
         raise AmorError(f"{err}{older}") from None
 
 
@@ -139,8 +150,10 @@ def check_compatible(ckpt: Checkpoint, config: TrainConfig, env: VectorEnv) -> N
     for key in ("env_kind", "character", "gym_id", "objectives", "obs_dim", "action_dim", "backend"):
         if ckpt.meta.get(key) != expected[key]:
             what = key.replace("_", " ")
-            raise AmorError(f"{ckpt.path}: checkpoint was made for {what} {ckpt.meta.get(key)!r}, "
-                            f"this run has {expected[key]!r}")
+            raise AmorError(
+                f"{ckpt.path}: checkpoint was made for {what} {ckpt.meta.get(key)!r}, "
+                f"this run has {expected[key]!r}"
+            )
 
 
 class _Metrics:
@@ -226,6 +239,7 @@ def train_run(
     on_start: Callable[[VectorEnv, int, int], None] | None = None,
     on_iteration: Callable[[dict[str, float], int, float], None] | None = None,
     stop_after: int | None = None,
+    stop_when: Callable[[dict[str, float]], bool] | None = None,
 ) -> RunResult:
     """Train into the run directory ``out`` (new, or resumed from its newest checkpoint).
 
@@ -237,6 +251,8 @@ def train_run(
         on_iteration: called after every iteration with (metrics, total iterations, seconds elapsed).
         stop_after: stop (with a checkpoint, as on SIGINT) after this many iterations of this call;
             used by tests to simulate an interruption.
+        stop_when: stop the same way once it returns True for an iteration's metrics (e.g. a
+            wall-time budget in a benchmark).
 
     Raises:
         AmorError: ``out`` already holds a run (without ``resume``), has none to resume, or its
@@ -294,10 +310,16 @@ def train_run(
                 if on_iteration is not None:
                     on_iteration(last, total, time.perf_counter() - began)
                 if not all(np.isfinite(v) for k, v in last.items() if k.startswith("loss/")):
-                    raise AmorError(f"training diverged at iteration {iteration} (non-finite loss); "
-                                    f"the last good checkpoint is {last_path}")
+                    raise AmorError(
+                        f"training diverged at iteration {iteration} (non-finite loss); "
+                        f"the last good checkpoint is {last_path}"
+                    )
                 done_here = iteration - start
-                interrupted = stop.requested or (stop_after is not None and done_here >= stop_after)
+                interrupted = (
+                    stop.requested
+                    or (stop_after is not None and done_here >= stop_after)
+                    or (stop_when is not None and stop_when(last))
+                )
                 if interrupted or iteration % config.run.checkpoint_every == 0 or iteration == total:
                     last_path = checkpoint(iteration)
                 if interrupted:

@@ -25,13 +25,13 @@ from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
 
 
-def single_thread_rate(env: TrackingEnv, samples: int = 48, repeats: int = 3) -> float:
+def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -> float:
     """Physics steps/s of ``mj_step`` on one thread, from the env's current states and controls."""
     sim = env.sim
     m = sim.model
     d = mujoco.MjData(m)
     ids = np.linspace(0, env.num_envs - 1, min(samples, env.num_envs)).astype(int)
-    ctrl = sim.ctrl[:, 0].copy()
+    ctrl = sim.ctrl[:, 0].copy()  # timed actions include noise; these are the last ones applied
     if sim.servo:  # motor actuators: replay the last computed servo torques
         ctrl[:, sim.actuators] = sim.torque[:, -1] / sim.gear
     best = 0.0
@@ -63,24 +63,39 @@ def measure(character: str, num_envs: int, nthread: int, seconds: float, seed: i
     for _ in range(5):
         env.step(act())
     base_before = single_thread_rate(env)
-    steps, resets, t0 = 0, 0, time.perf_counter()
-    actions = act()
-    while time.perf_counter() - t0 < seconds or steps < 10:
-        _, _, term, trunc, _ = env.step(actions)
-        resets += int(term.sum() + trunc.sum())
-        actions = act()
-        steps += 1
-    elapsed = time.perf_counter() - t0
+    # Time windows of a few steps and keep the best: other processes on a shared machine only
+    # ever slow a window down, and the single-thread rate is a best-of as well.
+    sim_step = env.sim.step
+    sim_time = [0.0]
+
+    def timed_sim_step(target: np.ndarray) -> object:  # physics + actuator model, for the share
+        t = time.perf_counter()
+        out = sim_step(target)
+        sim_time[0] += time.perf_counter() - t
+        return out
+
+    env.sim.step = timed_sim_step  # type: ignore[method-assign]
+    steps, resets, best, t_start = 0, 0, 0.0, time.perf_counter()
+    while time.perf_counter() - t_start < seconds or steps < 10:
+        window = 0.05 * rng.standard_normal((5, num_envs, env.action_dim))
+        t0 = time.perf_counter()
+        for noise in window:  # reference targets + noise, the "policy"
+            _, _, term, trunc, _ = env.step(lib.joint_pos[env.ref_idx + 1] + noise)
+            resets += int(term.sum() + trunc.sum())
+        best = max(best, len(window) * num_envs / (time.perf_counter() - t0))
+        steps += len(window)
+    total = time.perf_counter() - t_start
     base_after = single_thread_rate(env)
     env.close()
-    rate = steps * num_envs / elapsed
-    single = 0.5 * (base_before + base_after)
+    rate = best
+    single = max(base_before, base_after)
     ideal = single / ch.substeps * nthread
     return {
         "env_steps_per_s": rate,
         "single_thread_physics_per_s": single,
         "ideal_env_steps_per_s": ideal,
         "resets_per_step": resets / steps,
+        "physics_share": sim_time[0] / total,
         "ratio": rate / ideal,
     }
 
@@ -99,7 +114,8 @@ def main() -> None:
                 f"{character:<12} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
                 f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
                 f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
-                f"resets/step: {r['resets_per_step']:.2f}  ratio: {r['ratio']:.2f}",
+                f"resets/step: {r['resets_per_step']:.2f}  physics share: {r['physics_share']:.0%}  "
+                f"ratio: {r['ratio']:.2f}",
                 flush=True,
             )
 

@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from amorctl import __version__
-from amorctl.cli import characters, plugins, train
+from amorctl.cli import characters, data, plugins, preprocess, train
 from amorctl.errors import AmorError
 
 app = typer.Typer(
@@ -23,6 +23,8 @@ app = typer.Typer(
 app.command("plugins")(plugins.plugins)
 app.command("train")(train.train)
 app.add_typer(characters.app, name="characters")
+app.command("preprocess")(preprocess.preprocess)
+app.add_typer(data.app, name="data")
 
 
 def _version(value: bool) -> None:

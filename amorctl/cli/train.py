@@ -62,10 +62,12 @@ class _Display:
         left = elapsed / max(done, 1) * (total - it)
         ep_s = m["episode/length"] / (50.0 if self.config.env.kind != "gym" else 1.0)
         head = Text(
-            f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   {m['env_steps_per_s']:,.0f} steps/s   "
+            f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   "
+            f"{m['env_steps_per_s']:,.0f} steps/s   "
             f"elapsed {_fmt_time(elapsed)}   left {_fmt_time(left)}\n"
             f"loss {_fmt(m['loss/total'])} (policy {_fmt(m['loss/policy'])}, value {_fmt(m['loss/value'])}, "
-            f"entropy {_fmt(m['loss/entropy'])})   KL {_fmt(m['kl'])}   clip {_fmt(m['clip_fraction'], '.2f')}   "
+            f"entropy {_fmt(m['loss/entropy'])})   KL {_fmt(m['kl'])}   "
+            f"clip {_fmt(m['clip_fraction'], '.2f')}   "
             f"lr {_fmt(m['learning_rate'])}   action std {_fmt(m['action_std'])}\n"
             f"episodes {int(m['episodes'])}   length {_fmt(m['episode/length'], '.1f')} steps "
             f"({_fmt(ep_s, '.2f')} s)   survival {_fmt(100 * m['episode/survival'], '.0f')}%   "
@@ -75,8 +77,12 @@ class _Display:
         for col in ("objective", "episode return", "reward/step", "critic expl. var."):
             table.add_column(col, justify="right" if col != "objective" else "left")
         for name in self.names:
-            table.add_row(name, _fmt(m[f"return/{name}"]), _fmt(m[f"reward/{name}"]),
-                          _fmt(m[f"explained_variance/{name}"], ".2f"))
+            table.add_row(
+                name,
+                _fmt(m[f"return/{name}"]),
+                _fmt(m[f"reward/{name}"]),
+                _fmt(m[f"explained_variance/{name}"], ".2f"),
+            )
         return Group(head, table)
 
     def on_iteration(self, m: dict[str, float], total: int, elapsed: float) -> None:
@@ -90,9 +96,11 @@ class _Display:
             rets = " ".join(f"{n}={_fmt(m[f'return/{n}'])}" for n in self.names)
             console.print(
                 f"it {it}/{total}  {m['env_steps_per_s']:,.0f} steps/s  loss {_fmt(m['loss/total'])}  "
-                f"value {_fmt(m['loss/value'])}  kl {_fmt(m['kl'])}  ep len {_fmt(m['episode/length'], '.1f')}  "
+                f"value {_fmt(m['loss/value'])}  kl {_fmt(m['kl'])}  "
+                f"ep len {_fmt(m['episode/length'], '.1f')}  "
                 f"survival {_fmt(m['episode/survival'], '.2f')}  returns {rets}",
                 highlight=False,
+                soft_wrap=True,
             )
 
     def stop(self) -> None:
@@ -110,8 +118,9 @@ def _resolve_config(
     return merge(base, {k: v for k, v in overrides.items() if v}, "command line")
 
 
-def _resume_config(out: Path, preset: str | None, config_file: Path | None,
-                   overrides: dict[str, dict[str, Any]]) -> TrainConfig:
+def _resume_config(
+    out: Path, preset: str | None, config_file: Path | None, overrides: dict[str, dict[str, Any]]
+) -> TrainConfig:
     """The run's own config; only ``--iterations`` may change, anything else must agree."""
     if preset is not None or config_file is not None:
         raise AmorError("--resume continues with the run's own config.toml; drop --preset/--config")
@@ -122,37 +131,65 @@ def _resume_config(out: Path, preset: str | None, config_file: Path | None,
                 continue
             current = getattr(getattr(config, section), key)
             if value != current:
-                raise AmorError(f"--resume: the run in {out} has {section}.{key} = {current!r}, "
-                                f"not {value!r}; it cannot change when resuming")
+                raise AmorError(
+                    f"--resume: the run in {out} has {section}.{key} = {current!r}, "
+                    f"not {value!r}; it cannot change when resuming"
+                )
     iterations = overrides.get("run", {}).get("iterations")
-    return config if iterations is None else merge(config, {"run": {"iterations": iterations}}, "command line")
+    return (
+        config if iterations is None else merge(config, {"run": {"iterations": iterations}}, "command line")
+    )
 
 
 def train(
-    character: Annotated[str | None, typer.Option("--character", "-c", help="Character plugin to train "
-                                                  "(default: the preset's, biped20).")] = None,
-    config_file: Annotated[Path | None, typer.Option("--config", help="TOML config on top of the preset "
-                                                     "(unknown keys are rejected).")] = None,
-    preset: Annotated[str | None, typer.Option("--preset", help=f"Preset: {' | '.join(PRESETS)} "
-                                               "(default quick).")] = None,
+    character: Annotated[
+        str | None,
+        typer.Option("--character", "-c", help="Character plugin to train (default: the preset's, biped20)."),
+    ] = None,
+    config_file: Annotated[
+        Path | None,
+        typer.Option("--config", help="TOML config on top of the preset (unknown keys are rejected)."),
+    ] = None,
+    preset: Annotated[
+        str | None, typer.Option("--preset", help=f"Preset: {' | '.join(PRESETS)} (default quick).")
+    ] = None,
     backend: Annotated[str | None, typer.Option("--backend", help="Training backend plugin.")] = None,
-    data: Annotated[Path | None, typer.Option("--data", help="Motion dataset (default: the character's "
-                                              "built-in clips, cached on first use).")] = None,
-    out: Annotated[Path | None, typer.Option("--out", help="Run directory (default runs/<env>-<time>).")] = None,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="Motion dataset (default: the character's built-in clips, cached on first use)."
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Run directory (default runs/<env>-<time>).")
+    ] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="Seed of env, networks and noise.")] = None,
     iterations: Annotated[int | None, typer.Option("--iterations", help="Total training iterations.")] = None,
-    resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --out from its newest "
-                                         "checkpoint.")] = False,
-    fixed_weights: Annotated[str | None, typer.Option("--fixed-weights", help="Plain PPO with one fixed w, "
-                                                      "e.g. up=1,smooth=0.5 (normalized; others 0).")] = None,
-    env: Annotated[str | None, typer.Option("--env", help="tracking (default) | toy | gym:<Gymnasium id> "
-                                            "with a vector reward.")] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume", help="Continue the run in --out from its newest checkpoint.")
+    ] = False,
+    fixed_weights: Annotated[
+        str | None,
+        typer.Option(
+            "--fixed-weights", help="Plain PPO with one fixed w, e.g. up=1,smooth=0.5 (normalized; others 0)."
+        ),
+    ] = None,
+    env: Annotated[
+        str | None,
+        typer.Option("--env", help="tracking (default) | toy | gym:<Gymnasium id> with a vector reward."),
+    ] = None,
     num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a JSON summary at the end, no live view.")] = False,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print a JSON summary at the end, no live view.")
+    ] = False,
 ) -> None:
     """Train one policy for every trade-off between the objectives (MOPPO, the AMOR paper's Section 4)."""
-    env_section: dict[str, Any] = {"character": character, "num_envs": num_envs, "fixed_weights": fixed_weights,
-                                   "dataset": str(data) if data is not None else None}
+    env_section: dict[str, Any] = {
+        "character": character,
+        "num_envs": num_envs,
+        "fixed_weights": fixed_weights,
+        "dataset": str(data) if data is not None else None,
+    }
     if env is not None:
         kind, _, gym_id = env.partition(":")
         if kind not in ("tracking", "toy", "gym") or (kind == "gym") != bool(gym_id):
@@ -174,10 +211,21 @@ def train(
             out = Path("runs") / f"{what}-{time.strftime('%Y%m%d-%H%M%S')}"
 
     display = _Display(out, config, live=console.is_terminal and not json_out)
+    if config.env.kind == "tracking" and not json_out:
+        data_note = (
+            config.env.dataset or "the built-in clips (preprocessed into the cache on first use: minutes)"
+        )
+        console.print(
+            f"preparing {config.env.num_envs} {config.env.character} envs on {data_note} …", highlight=False
+        )
     try:
-        result = train_run(config, out, resume=resume,
-                           on_start=None if json_out else display.on_start,
-                           on_iteration=None if json_out else display.on_iteration)
+        result = train_run(
+            config,
+            out,
+            resume=resume,
+            on_start=None if json_out else display.on_start,
+            on_iteration=None if json_out else display.on_iteration,
+        )
     finally:
         display.stop()
     summary = {
@@ -192,6 +240,8 @@ def train(
         print_json(summary)
         return
     state = "interrupted" if result.interrupted else "done"
-    console.print(f"{state} at iteration {result.end_iteration}; checkpoint {summary['checkpoint']}", highlight=False)
+    console.print(
+        f"{state} at iteration {result.end_iteration}; checkpoint {summary['checkpoint']}", highlight=False
+    )
     if result.interrupted:
         raise typer.Exit(130)

@@ -152,7 +152,9 @@ class BatchSim:
         self._models = [m] * n
         self._datas = [mujoco.MjData(m) for _ in range(self.nthread)]
         self._pool = mujoco.rollout.Rollout(nthread=self.nthread)
-        self._chunk = max(1, n // (self.nthread * 10))
+        # Small chunks balance the load when a core is shared with other processes; the
+        # per-chunk cost is negligible next to substeps x mj_step.
+        self._chunk = max(1, min(8, n // (self.nthread * 16)))
         self.torque = np.zeros((n, self.substeps, self.num_joints))
 
         if self.servo:
@@ -260,7 +262,10 @@ class BatchSim:
             self.ctrl[:, :, self.actuators] = pd_target[:, None, :]
             self._rollout(self.substeps)
             out = self._out_state
-            qv_prev, qv_last = out[:, -2, self.s_qvel] if self.substeps > 1 else self.qvel, out[:, -1, self.s_qvel]
+            qv_prev, qv_last = (
+                out[:, -2, self.s_qvel] if self.substeps > 1 else self.qvel,
+                out[:, -1, self.s_qvel],
+            )
             self.warmstart = (qv_last - qv_prev) / self.dt
             self.state[:] = out[:, -1]
             nsens = self.num_ee * 10

@@ -52,14 +52,18 @@ class MOGymVectorEnv:
             raise AmorError(f"{first}: no vector reward_space of shape (m,); MOPPO needs a vector reward")
         m = int(space.shape[0])
         if not isinstance(first.action_space, gym.spaces.Box):
-            raise AmorError(f"{first}: action space {first.action_space} is not a Box; the Gaussian actor needs "
-                            "continuous actions")
+            raise AmorError(
+                f"{first}: action space {first.action_space} is not a Box; the Gaussian actor needs "
+                "continuous actions"
+            )
         names = reward_names or getattr(first.unwrapped, "reward_names", None) or [f"r{i}" for i in range(m)]
         if len(names) != m:
             raise AmorError(f"{len(names)} reward names for {m} objectives")
         self.reward_space = RewardSpace(
             names=tuple(names),
-            descriptions=tuple(f"objective {i} of {first.spec.id if first.spec else first}" for i in range(m)),
+            descriptions=tuple(
+                f"objective {i} of {first.spec.id if first.spec else first}" for i in range(m)
+            ),
             low=np.broadcast_to(np.asarray(space.low, dtype=np.float64), (m,)).copy(),
             high=np.broadcast_to(np.asarray(space.high, dtype=np.float64), (m,)).copy(),
         )
@@ -97,7 +101,9 @@ class MOGymVectorEnv:
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every copy with actions [N, A] (clipped to the Box); auto-reset ended episodes."""
-        actions = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1), self._low, self._high)
+        actions = np.clip(
+            np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1), self._low, self._high
+        )
         rewards = np.zeros((self.num_envs, self.num_objectives), dtype=np.float32)
         terminated = np.zeros(self.num_envs, dtype=bool)
         truncated = np.zeros(self.num_envs, dtype=bool)
@@ -107,8 +113,10 @@ class MOGymVectorEnv:
             obs, reward, term, trunc, _ = env.step(shaped)
             reward = np.asarray(reward, dtype=np.float32).reshape(-1)
             if reward.shape != (self.num_objectives,):
-                raise AmorError(f"{env}: step returned a reward of shape {reward.shape}, "
-                                f"expected ({self.num_objectives},)")
+                raise AmorError(
+                    f"{env}: step returned a reward of shape {reward.shape}, "
+                    f"expected ({self.num_objectives},)"
+                )
             rewards[i] = reward
             final[i] = np.asarray(obs, dtype=np.float32).reshape(-1)
             terminated[i], truncated[i] = bool(term), bool(trunc) and not bool(term)
@@ -146,7 +154,9 @@ def make_gym_env(env_id: str, num_envs: int, seed: int = 0) -> MOGymVectorEnv:
         pass
     if maker is None:
         if env_id not in gym.registry:
-            raise AmorError(f"unknown Gymnasium environment {env_id!r} (is its package installed? "
-                            "MO-Gymnasium tasks need `pip install mo-gymnasium`)")
+            raise AmorError(
+                f"unknown Gymnasium environment {env_id!r} (is its package installed? "
+                "MO-Gymnasium tasks need `pip install mo-gymnasium`)"
+            )
         maker = lambda: gym.make(env_id)  # noqa: E731
     return MOGymVectorEnv(maker, num_envs, seed=seed)

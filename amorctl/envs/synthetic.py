@@ -41,7 +41,7 @@ def synthetic_library(
     sim.close()
     d = mujoco.MjData(m)
     fps = float(character.control_hz)
-    nf = int(round(seconds * fps)) + 1
+    nf = round(seconds * fps) + 1
     jn = character.num_joints
     lo = np.array([j.range[0] for j in character.joints])
     hi = np.array([j.range[1] for j in character.joints])
@@ -90,7 +90,9 @@ def synthetic_library(
     root_pos, root_quat, joint_pos, ee_pos, ee_quat = cat("rp"), cat("rq"), cat("q"), cat("ep"), cat("eq")
     zeros3 = np.zeros_like(root_pos)
     joint_vel, ee_lin_vel = grad("q"), grad("ep")
-    frames = frame_features(root_pos, root_quat, zeros3, zeros3, joint_pos, joint_vel, ee_pos, ee_quat, ee_lin_vel)
+    frames = frame_features(
+        root_pos, root_quat, zeros3, zeros3, joint_pos, joint_vel, ee_pos, ee_quat, ee_lin_vel
+    )
     phase = 2 * np.pi * np.concatenate([np.arange(nf) / (nf - 1)] * num_clips)
     return MotionLibrary(
         character=character.name,

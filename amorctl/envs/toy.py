@@ -23,7 +23,10 @@ from amorctl.weights import sample_dirichlet
 
 TOY_REWARD_SPACE = RewardSpace(
     names=("right", "left"),
-    descriptions=("exp(-(a - (1 + s))^2): act to the right of s", "exp(-(a - (-1 + s))^2): act to the left of s"),
+    descriptions=(
+        "exp(-(a - (1 + s))^2): act to the right of s",
+        "exp(-(a - (-1 + s))^2): act to the left of s",
+    ),
     low=np.zeros(2),
     high=np.ones(2),
 )
@@ -54,9 +57,9 @@ class ToyTradeoffEnv:
 
     def _obs(self) -> np.ndarray:
         phase = self.t / self.max_steps
-        return np.concatenate(
-            [np.stack([self.s, self.s_prev, phase], axis=1), self._w], axis=1
-        ).astype(np.float32)
+        return np.concatenate([np.stack([self.s, self.s_prev, phase], axis=1), self._w], axis=1).astype(
+            np.float32
+        )
 
     def _start(self, mask: np.ndarray) -> None:
         k = int(mask.sum())

@@ -157,8 +157,8 @@ class TrackingEnv:
 
     @property
     def weights(self) -> np.ndarray:
-        """[N, m] float32: each env's current episode weights."""
-        return self._weights
+        """[N, m] float32: each env's current episode weights (a copy: ``step`` redraws in place)."""
+        return self._weights.copy()
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start every env anew (RSI, fresh weights). Returns obs [N, obs_dim] float32, info."""
@@ -180,13 +180,19 @@ class TrackingEnv:
         """
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, self.action_dim):
-            raise AmorError(f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}")
+            raise AmorError(
+                f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}"
+            )
         nxt = self.ref_idx + 1  # the frame this step should reach (the context's target)
         target = actions if self.action_mode == "absolute" else self.library.joint_pos[nxt] + actions
         target = np.clip(target, self.joint_low, self.joint_high)
 
         out = self.sim.step(target)
-        self.ee_pos, self.ee_quat, self.ee_lin_vel = out.ee_pos.copy(), out.ee_quat.copy(), out.ee_lin_vel.copy()
+        self.ee_pos, self.ee_quat, self.ee_lin_vel = (
+            out.ee_pos.copy(),
+            out.ee_quat.copy(),
+            out.ee_lin_vel.copy(),
+        )
         sim_frames = self._sim_frames()
         ref_frames = self.ref_frames[nxt]
         joint_vel = self.sim.joint_vel()
@@ -316,4 +322,6 @@ def _check_library(ch: CharacterSpec, lib: MotionLibrary) -> None:
     if tuple(lib.end_effectors) != tuple(ch.end_effectors):
         raise AmorError(f"motion library end effectors do not match character {ch.name!r}'s")
     if lib.fps != ch.control_hz:
-        raise AmorError(f"motion library is at {lib.fps} fps; character {ch.name!r} runs at {ch.control_hz} Hz")
+        raise AmorError(
+            f"motion library is at {lib.fps} fps; character {ch.name!r} runs at {ch.control_hz} Hz"
+        )

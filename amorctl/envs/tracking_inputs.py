@@ -18,8 +18,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from amorctl.geometry import heading_quat_inv, quat_mul, quat_rotate, quat_to_6d
-
 
 def frame_dim(num_joints: int, num_ee: int) -> int:
     """D, the length of a frame vector for J joints and E end effectors."""
@@ -63,6 +61,19 @@ def split_frame(frames: Any, num_joints: int, num_ee: int, xp: Any = np) -> Fram
     )
 
 
+def _rot_columns(q: Any, xp: Any) -> tuple[Any, Any]:
+    """First two columns of R(q) for unit quaternions (w, x, y, z). q: [..., 4] -> 2 x [..., 3]."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    c0 = xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1)
+    c1 = xp.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], axis=-1)
+    return c0, c1
+
+
+def _unyaw(v: Any, c: Any, s: Any, xp: Any) -> Any:
+    """Rotate vectors v [..., 3] by -heading, given cos/sin of the heading broadcastable to [...]."""
+    return xp.stack([c * v[..., 0] + s * v[..., 1], c * v[..., 1] - s * v[..., 0], v[..., 2]], axis=-1)
+
+
 def frame_features(
     root_pos: Any,
     root_quat: Any,
@@ -77,9 +88,13 @@ def frame_features(
 ) -> Any:
     """The heading-frame frame vector m_t from world-frame state.
 
+    The heading is :func:`amorctl.geometry.heading_angle` of the root (yaw of its x axis); every
+    vector and orientation is rotated by minus that yaw (``heading_quat_inv``), written out in
+    closed form because this runs on every env step.
+
     Args:
         root_pos: [N, 3] world root position (z up; the ground is z = 0), m.
-        root_quat: [N, 4] world root orientation (w, x, y, z).
+        root_quat: [N, 4] world root orientation (w, x, y, z), unit norm.
         root_lin_vel: [N, 3] world root linear velocity, m/s.
         root_ang_vel: [N, 3] world root angular velocity, rad/s.
         joint_pos: [N, J] rad.  joint_vel: [N, J] rad/s.
@@ -89,21 +104,26 @@ def frame_features(
         [N, D] frames, D = 13 + 2J + 12E, laid out as the module docstring says.
     """
     n, e = ee_pos.shape[0], ee_pos.shape[1]
-    hinv = heading_quat_inv(root_quat, xp)  # [N, 4]
-    hinv_e = xp.broadcast_to(hinv[:, None, :], (n, e, 4))
-    root_rot6d = quat_to_6d(quat_mul(hinv, root_quat, xp), xp)
-    lin = quat_rotate(hinv, root_lin_vel, xp)
-    ang = quat_rotate(hinv, root_ang_vel, xp)
-    rel_pos = quat_rotate(hinv_e, ee_pos - root_pos[:, None, :], xp)
-    rel_rot = quat_to_6d(quat_mul(hinv_e, ee_quat, xp), xp)
-    rel_vel = quat_rotate(hinv_e, ee_lin_vel - root_lin_vel[:, None, :], xp)
-    pose = xp.concatenate([rel_pos, rel_rot], axis=-1)
+    r0, r1 = _rot_columns(root_quat, xp)
+    norm = xp.sqrt(r0[:, 0] ** 2 + r0[:, 1] ** 2)
+    flat = norm < 1e-12  # x axis vertical: heading 0, as atan2(0, 0)
+    safe = xp.where(flat, 1.0, norm)
+    c = xp.where(flat, 1.0, r0[:, 0] / safe)
+    s = xp.where(flat, 0.0, r0[:, 1] / safe)
+    ce, se = c[:, None], s[:, None]
+    e0, e1 = _rot_columns(ee_quat, xp)
+    pose = xp.concatenate(
+        [_unyaw(ee_pos - root_pos[:, None, :], ce, se, xp), _unyaw(e0, ce, se, xp), _unyaw(e1, ce, se, xp)],
+        axis=-1,
+    )
+    rel_vel = _unyaw(ee_lin_vel - root_lin_vel[:, None, :], ce, se, xp)
     return xp.concatenate(
         [
             root_pos[:, 2:3],
-            root_rot6d,
-            lin,
-            ang,
+            _unyaw(r0, c, s, xp),
+            _unyaw(r1, c, s, xp),
+            _unyaw(root_lin_vel, c, s, xp),
+            _unyaw(root_ang_vel, c, s, xp),
             joint_pos,
             joint_vel,
             xp.reshape(pose, (n, 9 * e)),

@@ -38,7 +38,7 @@ class FixedWeights:
 
     def _patch(self, obs: np.ndarray) -> np.ndarray:
         obs = np.array(obs, dtype=np.float32, copy=True)
-        obs[:, -self._tiled.shape[1]:] = self._tiled
+        obs[:, -self._tiled.shape[1] :] = self._tiled
         return obs
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -19,15 +19,20 @@ means R = Rz Rx Ry; angles in degrees.
 
 from __future__ import annotations
 
-import tomllib
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
 from amorctl.errors import AmorError
 from amorctl.geometry import quat_conj, quat_from_rotvec, quat_mul, quat_normalize, quat_rotate
-from amorctl.motion.importers import ImportOptions, Importer, file_sha256, register_importer
+from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     C_DM_TO_MJ_QUAT,
@@ -233,7 +238,7 @@ def load_joint_map(path: Path) -> JointMap:
     if not isinstance(scale, (int, float)) or not scale > 0:
         raise AmorError(f"{path}: [options] scale must be a positive number")
     if up not in ("y", "z"):
-        raise AmorError(f"{path}: [options] up must be \"y\" or \"z\"")
+        raise AmorError(f'{path}: [options] up must be "y" or "z"')
     return JointMap(joints=dict(joints), scale=float(scale), up=up)
 
 
@@ -259,7 +264,9 @@ def bvh_local_transforms(bvh: BvhFile) -> tuple[np.ndarray, np.ndarray]:
     return trans, rots
 
 
-def bvh_to_source(bvh: BvhFile, jmap: JointMap, path: str, name: str, sha256: str, licence: str) -> SourceMotion:
+def bvh_to_source(
+    bvh: BvhFile, jmap: JointMap, path: str, name: str, sha256: str, licence: str
+) -> SourceMotion:
     """Forward kinematics on the whole BVH tree, then read off the canonical joints."""
     names = [j.name for j in bvh.joints]
     for canon, bname in jmap.joints.items():
@@ -371,4 +378,6 @@ def load_bvh(path: Path, options: ImportOptions) -> SourceMotion:
     return bvh_to_source(bvh, jmap, str(path), options.name or path.stem, file_sha256(path), options.licence)
 
 
-register_importer(Importer(name="bvh", suffixes=(".bvh",), load=load_bvh, description="Biovision BVH + TOML map"))
+register_importer(
+    Importer(name="bvh", suffixes=(".bvh",), load=load_bvh, description="Biovision BVH + TOML map")
+)

@@ -15,7 +15,7 @@ import numpy as np
 
 from amorctl.errors import AmorError
 from amorctl.geometry import quat_from_rotvec, quat_mul, quat_normalize
-from amorctl.motion.importers import ImportOptions, Importer, file_sha256, register_importer
+from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     C_DM_TO_MJ_QUAT,
@@ -118,7 +118,9 @@ def load_deepmimic(path: Path, options: ImportOptions) -> SourceMotion:
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise AmorError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}") from None
+        raise AmorError(
+            f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
+        ) from None
     if not isinstance(doc, dict) or "Frames" not in doc:
         raise AmorError(f"{path}: not a DeepMimic clip (no 'Frames' list)")
     frames = doc["Frames"]

@@ -59,7 +59,7 @@ def forward_difference(x: np.ndarray, dt: float) -> np.ndarray:
 def angular_velocity(quat: np.ndarray, dt: float) -> np.ndarray:
     """World angular velocities [T, ..., 3] from orientations [T, ..., 4] by forward difference."""
     if quat.shape[0] < 2:
-        return np.zeros(quat.shape[:-1] + (3,))
+        return np.zeros((*quat.shape[:-1], 3))
     rel = quat_mul(quat[1:], quat_conj(quat[:-1]))
     w = quat_to_rotvec(rel) / dt
     return np.concatenate([w, w[-1:]], axis=0)

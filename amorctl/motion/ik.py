@@ -119,7 +119,11 @@ def sliding(pos: np.ndarray, contact: np.ndarray, fps: float) -> float:
 
 def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
     """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK."""
-    fps = 1.0 / float(motion.times[1] - motion.times[0]) if motion.times.size > 1 else float(kin.spec.control_hz)
+    fps = (
+        1.0 / float(motion.times[1] - motion.times[0])
+        if motion.times.size > 1
+        else float(kin.spec.control_hz)
+    )
     leg_t, foot_h, rest = target_geometry(kin)
     scale = leg_t / source_leg_length(motion)
     src = keypoint_positions(motion)
@@ -140,7 +144,9 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
     tasks: dict[str, mink.FrameTask] = {}
     for key, (pc, oc) in COSTS.items():
         if key in kin.spec.keypoints:
-            tasks[key] = mink.FrameTask(kin.spec.keypoints[key], "body", position_cost=pc, orientation_cost=oc)
+            tasks[key] = mink.FrameTask(
+                kin.spec.keypoints[key], "body", position_cost=pc, orientation_cost=oc
+            )
     posture = mink.PostureTask(model, cost=POSTURE_COST)
     q0 = model.qpos0.copy()
     for name, angle in kin.spec.standing_pose.items():
@@ -177,10 +183,13 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         stats={"method": "ik", "scale": scale},
     )
     out = finish(out, motion, kin, lift=True, targets=scaled)
-    feet_pos, _ = kin.body_poses(kin.qpos(out.root_pos, out.root_quat, out.joint_pos),
-                                 [kin.spec.keypoints[f] for f in FEET])
+    feet_pos, _ = kin.body_poses(
+        kin.qpos(out.root_pos, out.root_quat, out.joint_pos), [kin.spec.keypoints[f] for f in FEET]
+    )
     stats = dict(out.stats)
     stats["foot_sliding_source"] = float(np.mean([sliding(scaled[f], contacts[f], fps) for f in FEET]))
-    stats["foot_sliding"] = float(np.mean([sliding(feet_pos[:, i], contacts[f], fps) for i, f in enumerate(FEET)]))
+    stats["foot_sliding"] = float(
+        np.mean([sliding(feet_pos[:, i], contacts[f], fps) for i, f in enumerate(FEET)])
+    )
     stats["contact_fraction"] = float(np.mean([contacts[f].mean() for f in FEET]))
     return CharacterMotion(**{**out.__dict__, "stats": stats})

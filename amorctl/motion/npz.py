@@ -17,7 +17,7 @@ import numpy as np
 
 from amorctl.errors import AmorError
 from amorctl.geometry import quat_normalize
-from amorctl.motion.importers import ImportOptions, Importer, file_sha256, register_importer
+from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import CharacterMotion, check_finite, check_times
 
 REQUIRED = ("fps", "joint_pos", "body_pos_w", "body_quat_w")
@@ -40,7 +40,9 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
         raise AmorError(f"{path}: missing {what} {', '.join(missing)} (has: {', '.join(sorted(arrays))})")
     for key in ("joint_names", "body_names"):
         if key not in arrays:
-            raise AmorError(f"{path}: no {key!r}: amorctl maps robot motion by names, never by array position")
+            raise AmorError(
+                f"{path}: no {key!r}: amorctl maps robot motion by names, never by array position"
+            )
     fps_arr = np.asarray(arrays["fps"], dtype=np.float64).reshape(-1)
     if fps_arr.size != 1 or not np.isfinite(fps_arr[0]) or fps_arr[0] <= 0:
         raise AmorError(f"{path}: 'fps' must be one positive number, got {arrays['fps']!r}")
@@ -51,7 +53,9 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
     joint_names = [str(n) for n in np.asarray(arrays["joint_names"]).reshape(-1)]
     body_names = [str(n) for n in np.asarray(arrays["body_names"]).reshape(-1)]
     if jpos.ndim != 2 or jpos.shape[0] == 0:
-        raise AmorError(f"{path}: joint_pos must be [frames, joints] with at least one frame, got {jpos.shape}")
+        raise AmorError(
+            f"{path}: joint_pos must be [frames, joints] with at least one frame, got {jpos.shape}"
+        )
     num_frames = jpos.shape[0]
     if jpos.shape[1] != len(joint_names):
         raise AmorError(f"{path}: joint_pos has {jpos.shape[1]} columns but {len(joint_names)} joint_names")
@@ -61,7 +65,9 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
             f"{num_frames} frames and {len(body_names)} body_names"
         )
     if "joint_vel" in arrays and np.shape(arrays["joint_vel"]) != jpos.shape:
-        raise AmorError(f"{path}: joint_vel {np.shape(arrays['joint_vel'])} does not match joint_pos {jpos.shape}")
+        raise AmorError(
+            f"{path}: joint_vel {np.shape(arrays['joint_vel'])} does not match joint_pos {jpos.shape}"
+        )
     wanted = list(options.joint_names)
     absent = [n for n in wanted if n not in joint_names]
     unknown = [n for n in joint_names if n not in wanted]
@@ -71,7 +77,9 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
             parts.append(f"missing character joints {', '.join(absent)}")
         if unknown:
             parts.append(f"joints unknown to the character {', '.join(unknown)}")
-        raise AmorError(f"{path}: joint names do not match character {options.character!r}: {'; '.join(parts)}")
+        raise AmorError(
+            f"{path}: joint names do not match character {options.character!r}: {'; '.join(parts)}"
+        )
     if options.root_body not in body_names:
         raise AmorError(
             f"{path}: no body named {options.root_body!r} (the root of {options.character!r}) in body_names"

@@ -43,7 +43,9 @@ def retarget_direct(motion: SourceMotion, kin: CharacterKinematics) -> Character
             idx = [names.index(t) for t in triplet]
             axes = kin.joint_axes[idx]  # rows: the three hinge axes in the body frame
             if abs(np.linalg.det(axes) - 1.0) > 1e-6 or not np.allclose(axes @ axes.T, np.eye(3), atol=1e-6):
-                raise AmorError(f"{kin.spec.mjcf_path}: joints {', '.join(triplet)} are not a right-handed axis triplet")
+                raise AmorError(
+                    f"{kin.spec.mjcf_path}: joints {', '.join(triplet)} are not a right-handed axis triplet"
+                )
             mats = quat_to_mat(local)
             euler = mat_to_euler_xyz(axes @ mats @ axes.T)  # the rotation in the triplet's own axes
             joint_pos[:, idx] = np.unwrap(euler, axis=0)
@@ -106,7 +108,9 @@ def lift_to_floor(motion: CharacterMotion, kin: CharacterKinematics) -> tuple[Ch
     return replace(motion, root_pos=root), lift
 
 
-def keypoint_errors(motion: CharacterMotion, targets: dict[str, np.ndarray], kin: CharacterKinematics) -> np.ndarray:
+def keypoint_errors(
+    motion: CharacterMotion, targets: dict[str, np.ndarray], kin: CharacterKinematics
+) -> np.ndarray:
     """[T, K] distance between the character's key-point bodies and target positions (m)."""
     keys = list(targets)
     pos, _ = kin.body_poses(

@@ -153,7 +153,7 @@ def forward_kinematics(
     root_pos [T, 3], local_quat [T, J, 4] -> (pos [T, J, 3], quat [T, J, 4]).
     """
     num_joints = len(skeleton.names)
-    pos = np.zeros(local_quat.shape[:-1] + (3,))
+    pos = np.zeros((*local_quat.shape[:-1], 3))
     quat = np.zeros(local_quat.shape)
     for j in range(num_joints):
         p = skeleton.parents[j]
@@ -161,7 +161,9 @@ def forward_kinematics(
             pos[:, j] = root_pos
             quat[:, j] = local_quat[:, j]
         else:
-            pos[:, j] = pos[:, p] + quat_rotate(quat[:, p], np.broadcast_to(skeleton.offsets[j], pos[:, p].shape))
+            pos[:, j] = pos[:, p] + quat_rotate(
+                quat[:, p], np.broadcast_to(skeleton.offsets[j], pos[:, p].shape)
+            )
             quat[:, j] = quat_mul(quat[:, p], local_quat[:, j])
     return pos, quat
 

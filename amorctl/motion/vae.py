@@ -14,7 +14,7 @@ stored encoder is the one trained without them, and z_t is the posterior mean fo
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -37,7 +37,8 @@ class VaeConfig:
     epochs: int = 150  # passes over the training windows
     batch_size: int = 256
     learning_rate: float = 1e-3
-    holdout_fraction: float = 0.1  # share of clips held out for the reported error (at least 1)
+    holdout_fraction: float = 0.1  # share of clips held out (at least 1), when ``holdout`` is empty
+    holdout: tuple[str, ...] = ()  # names of the clips to hold out; overrides holdout_fraction
     seed: int = 0
 
 
@@ -99,12 +100,21 @@ class TrainedVae:
     std: np.ndarray  # [D]
     heldout_clips: list[int]
     heldout_error: float | None  # MSE (standardised units) on held-out clips, trained encoder
+    heldout_per_clip: list[float]  # the same per held-out clip
     untrained_error: float | None  # the same with the initial (untrained) weights
     train_error: float
 
 
-def split_clips(num_clips: int, cfg: VaeConfig) -> list[int]:
-    """Indices of the clips held out (none if there is only one clip)."""
+def split_clips(num_clips: int, cfg: VaeConfig, names: Sequence[str] = ()) -> list[int]:
+    """Indices of the clips held out: those named in ``cfg.holdout`` (resolved against ``names``),
+    else a seeded random ``holdout_fraction`` of them (none if there is only one clip)."""
+    if cfg.holdout:
+        from amorctl.motion.resolve import resolve_name
+
+        held = sorted({list(names).index(resolve_name(h, names, "the clips")) for h in cfg.holdout})
+        if len(held) >= num_clips:
+            raise AmorError("the VAE needs at least one clip that is not held out")
+        return held
     if num_clips < 2 or cfg.holdout_fraction <= 0:
         return []
     count = min(num_clips - 1, max(1, round(cfg.holdout_fraction * num_clips)))
@@ -132,8 +142,9 @@ def train_vae(
     lengths: np.ndarray,
     cfg: VaeConfig,
     progress: Callable[[int, int, float], None] | None = None,
+    names: Sequence[str] = (),
 ) -> TrainedVae:
-    """Train on all clips but the held-out ones. frames [F, D]; starts, lengths [K].
+    """Train on all clips but the held-out ones. frames [F, D]; starts, lengths [K]; names [K].
 
     ``progress(step, total_steps, loss)`` is called after every optimiser step.
     """
@@ -141,7 +152,7 @@ def train_vae(
         raise AmorError(f"invalid VAE settings: {cfg}")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    held = split_clips(len(starts), cfg)
+    held = split_clips(len(starts), cfg, names)
     train_clips = [k for k in range(len(starts)) if k not in held]
     train_rows = np.concatenate([np.arange(starts[k], starts[k] + lengths[k]) for k in train_clips])
     mean = frames[train_rows].mean(axis=0)
@@ -159,7 +170,9 @@ def train_vae(
     opt = torch.optim.Adam([*enc.parameters(), *dec.parameters()], lr=cfg.learning_rate)
     steps_per_epoch = max(1, int(np.ceil(train_idx.shape[0] / cfg.batch_size)))
     total = cfg.epochs * steps_per_epoch
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(total, 1), eta_min=cfg.learning_rate * 0.05)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(
+        opt, T_max=max(total, 1), eta_min=cfg.learning_rate * 0.05
+    )
     step = 0
     for _ in range(cfg.epochs):
         order = rng.permutation(train_idx.shape[0])
@@ -176,7 +189,7 @@ def train_vae(
             sched.step()
             step += 1
             if progress is not None:
-                progress(step, total, float(loss))
+                progress(step, total, float(loss.detach()))
     enc.eval()
     dec.eval()
     del all_idx
@@ -188,14 +201,23 @@ def train_vae(
         std=std,
         heldout_clips=held,
         heldout_error=_recon_error(enc, dec, norm, held_idx) if held_idx is not None else None,
+        heldout_per_clip=[
+            _recon_error(enc, dec, norm, window_indices(starts[[k]], lengths[[k]], cfg.window)) for k in held
+        ],
         untrained_error=untrained,
         train_error=_recon_error(enc, dec, norm, train_idx),
     )
 
 
 def encode(
-    encoder: MotionEncoder, mean: np.ndarray, std: np.ndarray, frames: np.ndarray, starts: np.ndarray,
-    lengths: np.ndarray, window: int, batch: int = 1024,
+    encoder: MotionEncoder,
+    mean: np.ndarray,
+    std: np.ndarray,
+    frames: np.ndarray,
+    starts: np.ndarray,
+    lengths: np.ndarray,
+    window: int,
+    batch: int = 1024,
 ) -> np.ndarray:
     """z_t = posterior mean for every frame. frames [F, D] -> [F, L] (float32)."""
     norm = torch.from_numpy(((frames - mean) / std).astype(np.float32))
@@ -213,7 +235,11 @@ def encoder_to_bytes(vae: TrainedVae, frame_dim: int) -> bytes:
     tensors = {f"encoder.{k}": v.detach().contiguous() for k, v in vae.encoder.state_dict().items()}
     tensors["norm.mean"] = torch.from_numpy(vae.mean.astype(np.float32))
     tensors["norm.std"] = torch.from_numpy(vae.std.astype(np.float32))
-    meta = {"config": json.dumps(asdict(vae.config)), "frame_dim": str(frame_dim), "format": "amorctl.motion_vae.v1"}
+    meta = {
+        "config": json.dumps(asdict(vae.config)),
+        "frame_dim": str(frame_dim),
+        "format": "amorctl.motion_vae.v1",
+    }
     return st_save(tensors, metadata=meta)
 
 
@@ -246,7 +272,13 @@ def encoder_from_bytes(data: bytes) -> LoadedEncoder:
     cfg = VaeConfig(**json.loads(metadata["config"]))
     frame_dim = int(metadata["frame_dim"])
     enc = MotionEncoder(2 * cfg.window + 1, frame_dim, cfg.hidden, cfg.latent_dim)
-    enc.load_state_dict({k.removeprefix("encoder."): v for k, v in tensors.items() if k.startswith("encoder.")})
+    enc.load_state_dict(
+        {k.removeprefix("encoder."): v for k, v in tensors.items() if k.startswith("encoder.")}
+    )
     enc.eval()
-    return LoadedEncoder(cfg, enc, tensors["norm.mean"].numpy().astype(np.float64),
-                         tensors["norm.std"].numpy().astype(np.float64))
+    return LoadedEncoder(
+        cfg,
+        enc,
+        tensors["norm.mean"].numpy().astype(np.float64),
+        tensors["norm.std"].numpy().astype(np.float64),
+    )

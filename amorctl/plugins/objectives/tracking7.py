@@ -50,7 +50,7 @@ ALIVE_BONUS = 1.0
 
 #: Prior scales of Table 1, one column per ``CharacterSpec.scale_profile``. ``up_height`` (the
 #: root-height term of ``up``, which Table 1 describes but lists no scale for) takes the joint
-#: term's scale; ``alive`` is the survival bonus.
+#: term's scale (also when a character overrides ``up`` only); ``alive`` is the survival bonus.
 PRIOR_SCALES: dict[str, dict[str, float]] = {
     "humanoid": {
         "up": 1.0,
@@ -114,6 +114,8 @@ def resolve_scales(character: CharacterSpec) -> dict[str, float]:
         if not np.isfinite(value) or value < 0:
             raise AmorError(f"character {character.name!r}: scale {key!r} must be >= 0, got {value}")
         scales[key] = float(value)
+    if "up" in overrides and "up_height" not in overrides:
+        scales["up_height"] = scales["up"]  # the height term follows the joint term's scale
     return scales
 
 
@@ -145,10 +147,16 @@ class Tracking7:
         """Every term's value before combination, name -> [N] (for logging per-term sums)."""
         s, sim, ref = self.scales, x.sim, x.ref
         return {
-            "up": k.joint_pos_error_exp(sim.joint_pos[:, self.upper], ref.joint_pos[:, self.upper], s["up"], xp),
+            "up": k.joint_pos_error_exp(
+                sim.joint_pos[:, self.upper], ref.joint_pos[:, self.upper], s["up"], xp
+            ),
             "up_height": k.root_height_error_exp(sim.h, ref.h, s["up_height"], xp),
-            "lo": k.joint_pos_error_exp(sim.joint_pos[:, self.lower], ref.joint_pos[:, self.lower], s["lo"], xp),
-            "feet": k.joint_pos_error_exp(sim.joint_pos[:, self.feet], ref.joint_pos[:, self.feet], s["feet"], xp),
+            "lo": k.joint_pos_error_exp(
+                sim.joint_pos[:, self.lower], ref.joint_pos[:, self.lower], s["lo"], xp
+            ),
+            "feet": k.joint_pos_error_exp(
+                sim.joint_pos[:, self.feet], ref.joint_pos[:, self.feet], s["feet"], xp
+            ),
             "rbs_pos": k.body_pos_error_exp(sim.ee_pos, ref.ee_pos, s["rbs_pos"], xp),
             "rbs_rot": k.body_rot_error_exp(sim.ee_rot6d, ref.ee_rot6d, s["rbs_rot"], xp),
             "rbs_vel": k.body_vel_error_exp(sim.ee_vel, ref.ee_vel, s["rbs_vel"], xp),
@@ -156,7 +164,9 @@ class Tracking7:
             "vel_lin": k.root_lin_vel_error_exp(sim.root_lin_vel, ref.root_lin_vel, s["vel_lin"], xp),
             "vel_ang": k.root_ang_vel_error_exp(sim.root_ang_vel, ref.root_ang_vel, s["vel_ang"], xp),
             "smooth_torque": k.torque_l2(x.torque, s["smooth_torque"], xp),
-            "smooth_action_rate": k.action_rate_l2(x.pd_target, x.pd_target_prev, s["smooth_action_rate"], xp),
+            "smooth_action_rate": k.action_rate_l2(
+                x.pd_target, x.pd_target_prev, s["smooth_action_rate"], xp
+            ),
             "smooth_action_acc": k.action_acc_l2(
                 x.pd_target, x.pd_target_prev, x.pd_target_prev2, s["smooth_action_acc"], xp
             ),

@@ -44,8 +44,9 @@ class TorchCpuBackend:
         spec = get_registry().character(character)  # unknown names fail here, clearly
         library = _load_library(character, dataset)
         steps = max(1, round(episode_seconds * spec.control_hz))
-        return TrackingEnv(spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps,
-                           seed=seed, **options)
+        return TrackingEnv(
+            spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
+        )
 
     def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:
         """A :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer` for ``env``."""
@@ -68,23 +69,15 @@ def bf16_supported() -> bool:
 
 
 def _load_library(character: str, dataset: str | Path | None) -> Any:
-    """The motion library to track: ``dataset`` if given, else the character's default dataset."""
-    from amorctl import motion
+    """The motion library to track: ``dataset`` if given, else the character's built-in clips
+    (preprocessed into the user cache on first use)."""
+    from amorctl.motion.cache import default_dataset
+    from amorctl.motion.dataset import load_dataset
 
-    path = Path(dataset) if dataset else None
-    if path is None:
-        default_dataset = getattr(motion, "default_dataset", None)
-        if default_dataset is None:
-            from importlib import import_module
-
-            default_dataset = import_module("amorctl.motion.dataset").default_dataset
-        path = default_dataset(character)
+    path = Path(dataset) if dataset else default_dataset(character)
     if not path.is_file():
         raise AmorError(f"{path}: motion dataset not found")
-    from importlib import import_module
-
-    load = import_module("amorctl.motion.dataset").load_dataset
-    library = load(path)
+    library = load_dataset(path)
     if library.character != character:
         raise AmorError(f"{path}: dataset is for character {library.character!r}, not {character!r}")
     return library
@@ -93,5 +86,8 @@ def _load_library(character: str, dataset: str | Path | None) -> Any:
 @hookimpl
 def amorctl_register_backends(register: Any) -> None:
     """Register ``torch-cpu``."""
-    register(BackendSpec(name=NAME, description="MuJoCo C physics + PyTorch MOPPO on the CPU",
-                         make=TorchCpuBackend))
+    register(
+        BackendSpec(
+            name=NAME, description="MuJoCo C physics + PyTorch MOPPO on the CPU", make=TorchCpuBackend
+        )
+    )

@@ -10,7 +10,8 @@ Per iteration:
 3. **Update**: ``num_epochs`` passes over shuffled minibatches. The vector advantage is scalarized
    per sample as ``A·w``, normalized with the minibatch's mean and std, and drives the PPO
    clipped surrogate; the value loss is the (optionally clipped) squared error over all m
-   critic outputs; an entropy bonus; one Adam step on the sum with global gradient clipping. The
+   critic outputs; an entropy bonus; one Adam step on the sum, with the actor's and the critic's
+   gradient norms clipped separately (so large value errors do not shrink the policy step). The
    learning rate optionally adapts to keep the KL near ``desired_kl`` (as rsl_rl does).
 4. **Normalizer**: the running observation mean/std is frozen during an iteration (so the rollout
    and the update see the same inputs) and folds in the iteration's observations at its end.
@@ -87,7 +88,7 @@ class MOPPOTrainer:
         self.optimizer = torch.optim.Adam(self.params, lr=self.learning_rate)
 
         obs, _ = env.reset(seed=seed)
-        self.obs = torch.as_tensor(obs, dtype=torch.float32)  # [N, D] the current observations
+        self.obs = torch.tensor(obs, dtype=torch.float32)  # [N, D] the current observations
         if ppo.normalize_obs:
             self.normalizer.update(self.obs)  # first estimate from the reset states
         n, m = env.num_envs, self.num_objectives
@@ -104,7 +105,7 @@ class MOPPOTrainer:
     def reset_env(self, seed: int) -> None:
         """Restart every env episode with ``seed``; running episode sums start from zero."""
         obs, _ = self.env.reset(seed=seed)
-        self.obs = torch.as_tensor(obs, dtype=torch.float32)
+        self.obs = torch.tensor(obs, dtype=torch.float32)
         self.ep_return.zero_()
         self.ep_scalar.zero_()
         self.ep_length.zero_()
@@ -160,7 +161,7 @@ class MOPPOTrainer:
 
         for t in range(T):
             t0 = time.perf_counter()
-            weights = torch.as_tensor(self.env.weights, dtype=torch.float32)  # w of this step's episode
+            weights = torch.tensor(self.env.weights, dtype=torch.float32)  # w of this step's episode (a copy)
             mean, value = self._forward(self.obs)
             assert value is not None
             action = mean + std * torch.randn(mean.shape, generator=self.generator)
@@ -177,7 +178,7 @@ class MOPPOTrainer:
                 _, final_values = self._forward(final)
                 next_val_buf[t][trunc_buf[t]] = final_values
             self._track_episodes(rew_buf[t], weights, term_buf[t], trunc_buf[t])
-            self.obs = torch.as_tensor(obs, dtype=torch.float32)
+            self.obs = torch.tensor(obs, dtype=torch.float32)
             t_env += t2 - t1
             t_policy += time.perf_counter() - t2 + t1 - t0
 
@@ -230,8 +231,13 @@ class MOPPOTrainer:
         """GAE per objective over [T, N, m]; fills ``batch.advantages`` and ``batch.returns`` [B, m]."""
         T, N, m = batch.rewards.shape
         advantages, returns = gae(
-            batch.rewards, batch.values.reshape(T, N, m), batch.next_values, batch.terminated,
-            batch.truncated, self.cfg.gamma, self.cfg.gae_lambda,
+            batch.rewards,
+            batch.values.reshape(T, N, m),
+            batch.next_values,
+            batch.terminated,
+            batch.truncated,
+            self.cfg.gamma,
+            self.cfg.gae_lambda,
         )
         batch.advantages, batch.returns = advantages.reshape(T * N, m), returns.reshape(T * N, m)
 
@@ -266,10 +272,15 @@ class MOPPOTrainer:
         with torch.no_grad():
             old_std, new_std = torch.exp(batch.old_log_std), torch.exp(log_std)
             kl = (
-                log_std - batch.old_log_std
-                + (old_std**2 + (batch.means[idx] - mean) ** 2) / (2 * new_std**2)
-                - 0.5
-            ).sum(-1).mean()
+                (
+                    log_std
+                    - batch.old_log_std
+                    + (old_std**2 + (batch.means[idx] - mean) ** 2) / (2 * new_std**2)
+                    - 0.5
+                )
+                .sum(-1)
+                .mean()
+            )
             stats = {
                 "loss/total": loss.detach(),
                 "loss/policy": policy_loss.detach(),
@@ -292,7 +303,8 @@ class MOPPOTrainer:
                 loss, stats = self.minibatch_loss(batch, idx)
                 self.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                nn.utils.clip_grad_norm_(self.params, self.cfg.max_grad_norm)
+                nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+                nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
                 self.optimizer.step()
                 if self.cfg.lr_schedule == "adaptive":
                     self._adapt_learning_rate(float(stats["kl"]))
@@ -328,7 +340,10 @@ class MOPPOTrainer:
     def _metrics(
         self, batch: Batch, stats: dict[str, float], times: dict[str, float], elapsed: float
     ) -> dict[str, float]:
-        metrics: dict[str, float] = {"iteration": float(self.iteration_count), "env_steps": float(self.env_steps)}
+        metrics: dict[str, float] = {
+            "iteration": float(self.iteration_count),
+            "env_steps": float(self.env_steps),
+        }
         metrics["env_steps_per_s"] = batch.obs.shape[0] / max(elapsed, 1e-9)
         metrics["time/iteration_s"] = elapsed
         metrics["time/env_frac"] = times["env"] / elapsed
@@ -346,7 +361,9 @@ class MOPPOTrainer:
             metrics[f"reward/{name}"] = float(mean_reward[i])
             ret, val = batch.returns[:, i], batch.values[:, i]
             var = ret.var()
-            metrics[f"explained_variance/{name}"] = float(1 - (ret - val).var() / var) if var > 0 else float("nan")
+            metrics[f"explained_variance/{name}"] = (
+                float(1 - (ret - val).var() / var) if var > 0 else float("nan")
+            )
         metrics["return/scalarized"] = float(self.recent_scalar[filled].mean()) if has else float("nan")
         metrics["episode/length"] = float(self.recent_length[filled].mean()) if has else float("nan")
         metrics["episode/survival"] = float(self.recent_survived[filled].mean()) if has else float("nan")
@@ -357,7 +374,11 @@ class MOPPOTrainer:
     def state_dict(self) -> State:
         """Weights, normalizer, Adam state, RNG, current observations and episode statistics."""
         arrays: dict[str, np.ndarray] = {}
-        for prefix, module in (("actor", self.actor), ("critic", self.critic), ("normalizer", self.normalizer)):
+        for prefix, module in (
+            ("actor", self.actor),
+            ("critic", self.critic),
+            ("normalizer", self.normalizer),
+        ):
             for key, tensor in module.state_dict().items():
                 arrays[f"{prefix}.{key}"] = tensor.detach().cpu().numpy().copy()
         optim = self.optimizer.state_dict()
@@ -366,8 +387,15 @@ class MOPPOTrainer:
                 arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
         arrays["rng.torch"] = self.generator.get_state().numpy().copy()
         arrays["obs"] = self.obs.numpy().copy()
-        for key in ("ep_return", "ep_scalar", "ep_length", "recent_return", "recent_scalar", "recent_length",
-                    "recent_survived"):
+        for key in (
+            "ep_return",
+            "ep_scalar",
+            "ep_length",
+            "recent_return",
+            "recent_scalar",
+            "recent_length",
+            "recent_survived",
+        ):
             arrays[f"episodes.{key}"] = getattr(self, key).numpy().copy()
         meta = {
             "iteration": self.iteration_count,
@@ -386,23 +414,45 @@ class MOPPOTrainer:
     def load_state_dict(self, state: State) -> None:
         """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
         meta, arrays = state.meta, state.arrays
-        expect = {"obs_dim": self.env.obs_dim, "action_dim": self.env.action_dim, "objectives": list(self.names)}
+        expect = {
+            "obs_dim": self.env.obs_dim,
+            "action_dim": self.env.action_dim,
+            "objectives": list(self.names),
+        }
         for key, value in expect.items():
             if meta.get(key) != value:
                 raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
         try:
-            for prefix, module in (("actor", self.actor), ("critic", self.critic), ("normalizer", self.normalizer)):
-                tensors = {k[len(prefix) + 1:]: torch.from_numpy(v.copy()) for k, v in arrays.items()
-                           if k.startswith(prefix + ".")}
+            for prefix, module in (
+                ("actor", self.actor),
+                ("critic", self.critic),
+                ("normalizer", self.normalizer),
+            ):
+                tensors = {
+                    k[len(prefix) + 1 :]: torch.from_numpy(v.copy())
+                    for k, v in arrays.items()
+                    if k.startswith(prefix + ".")
+                }
                 module.load_state_dict(tensors, strict=True)
             optim_state: dict[int, dict[str, torch.Tensor]] = {}
             for index, keys in meta["optimizer_state_keys"].items():
-                optim_state[int(index)] = {k: torch.from_numpy(arrays[f"optimizer.{index}.{k}"].copy()) for k in keys}
-            self.optimizer.load_state_dict({"state": optim_state, "param_groups": meta["optimizer_param_groups"]})
+                optim_state[int(index)] = {
+                    k: torch.from_numpy(arrays[f"optimizer.{index}.{k}"].copy()) for k in keys
+                }
+            self.optimizer.load_state_dict(
+                {"state": optim_state, "param_groups": meta["optimizer_param_groups"]}
+            )
             self.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
             self.obs = torch.from_numpy(arrays["obs"].copy())
-            for key in ("ep_return", "ep_scalar", "ep_length", "recent_return", "recent_scalar", "recent_length",
-                        "recent_survived"):
+            for key in (
+                "ep_return",
+                "ep_scalar",
+                "ep_length",
+                "recent_return",
+                "recent_scalar",
+                "recent_length",
+                "recent_survived",
+            ):
                 setattr(self, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
         except (KeyError, RuntimeError, ValueError) as exc:
             raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None

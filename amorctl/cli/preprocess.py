@@ -1,0 +1,134 @@
+"""``amorctl preprocess``: mocap files in, an MCAP motion dataset out (docs/preprocess.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from amorctl.cli.options import CharacterOpt, JsonFlag
+from amorctl.cli.output import console, err_console, print_json
+from amorctl.motion.preprocess import Progress as Hooks
+from amorctl.motion.preprocess import preprocess as run_preprocess
+from amorctl.motion.vae import VaeConfig
+
+_DEFAULT = VaeConfig()
+
+
+def preprocess(
+    files: Annotated[
+        list[Path] | None, typer.Argument(help="Motion files (DeepMimic .txt/.json, .bvh, .npz).")
+    ] = None,
+    character: CharacterOpt = "humanoid36",
+    out: Annotated[Path, typer.Option("--out", "-o", help="Dataset file to write (.mcap).")] = Path(
+        "motion.mcap"
+    ),
+    builtin: Annotated[
+        str | None, typer.Option("--builtin", help="Add a built-in motion set: 'deepmimic' (20 clips).")
+    ] = None,
+    fmt: Annotated[
+        str | None, typer.Option("--format", help="deepmimic | bvh | npz (default: from the file suffix).")
+    ] = None,
+    joint_map: Annotated[Path | None, typer.Option("--map", help="TOML joint map for BVH files.")] = None,
+    vae: Annotated[bool, typer.Option("--vae/--no-vae", help="Train the motion VAE and store z_t.")] = True,
+    vae_epochs: Annotated[int, typer.Option(help="VAE training epochs.")] = _DEFAULT.epochs,
+    vae_window: Annotated[
+        int, typer.Option(help="VAE half window W (window = 2W+1 frames).")
+    ] = _DEFAULT.window,
+    vae_latent: Annotated[int, typer.Option(help="VAE latent size.")] = _DEFAULT.latent_dim,
+    vae_kl_weight: Annotated[float, typer.Option(help="VAE KL weight.")] = _DEFAULT.kl_weight,
+    holdout: Annotated[
+        list[str] | None, typer.Option("--holdout", help="Clip held out of VAE training (repeatable).")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Random seed of the VAE.")] = _DEFAULT.seed,
+    json_out: JsonFlag = False,
+) -> None:
+    """Import, retarget onto --character, compute frames and VAE latents; write --out atomically."""
+    cfg = (
+        VaeConfig(
+            epochs=vae_epochs,
+            window=vae_window,
+            latent_dim=vae_latent,
+            kl_weight=vae_kl_weight,
+            holdout=tuple(holdout or ()),
+            seed=seed,
+        )
+        if vae
+        else None
+    )
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[info]}"),
+        console=err_console,
+        transient=True,
+        disable=json_out or not err_console.is_terminal,
+    ) as bar:
+        clips_task = bar.add_task("clips", total=None, info="")
+        vae_task = bar.add_task("VAE", total=None, info="", visible=False)
+
+        def on_clip(i: int, n: int, name: str) -> None:
+            bar.update(clips_task, completed=i, total=n, info=name)
+
+        def on_step(step: int, total: int, loss: float) -> None:
+            bar.update(vae_task, completed=step, total=total, visible=True, info=f"loss {loss:.4f}")
+
+        report = run_preprocess(
+            list(files or []),
+            character=character,
+            out=out,
+            builtin=builtin,
+            fmt=fmt,
+            joint_map=joint_map,
+            vae=cfg,
+            progress=Hooks(clip=on_clip, vae_step=on_step),
+        )
+    if json_out:
+        print_json(
+            {
+                "out": report.out,
+                "character": report.character,
+                "fps": report.fps,
+                "num_frames": report.num_frames,
+                "clips": report.clips,
+                "vae": report.vae,
+                "timings_s": report.timings,
+            }
+        )
+        return
+    table = Table(title=f"{report.out} ({report.character}, {report.fps:g} Hz)")
+    for col in ("clip", "frames", "seconds", "source fps", "retarget err (m)", "floor lift (m)"):
+        table.add_column(col)
+    for c in report.clips:
+        table.add_row(
+            c["name"],
+            str(c["frames"]),
+            f"{c['duration_s']:.2f}",
+            f"{c['source_fps']:.1f}",
+            f"{c['retarget_error_m']:.4f}",
+            f"{c.get('floor_lift_max', 0.0):.3f}",
+        )
+    console.print(table)
+    if report.vae:
+        v = report.vae
+        console.print(
+            f"VAE (W={v['window']}, L={v['latent_dim']}, KL {v['kl_weight']:g}, {v['epochs']} epochs): "
+            f"held-out {', '.join(v['heldout_clips']) or '-'}: recon MSE {_fmt(v['heldout_recon_mse'])} "
+            f"(untrained {_fmt(v['untrained_heldout_recon_mse'])}), train {_fmt(v['train_recon_mse'])}",
+            highlight=False,
+        )
+    t = report.timings
+    console.print(
+        f"{len(report.clips)} clips, {report.num_frames} frames; {t['total']:.1f} s "
+        f"(clips {t['clips']:.1f} s, VAE {t['vae']:.1f} s)",
+        highlight=False,
+    )
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.4f}"

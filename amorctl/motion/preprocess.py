@@ -1,0 +1,223 @@
+"""``preprocess``: mocap files in, retargeted frames + motion-VAE latents out, as an MCAP dataset.
+
+Pipeline per clip: import (any registered format) -> resample to the character's control rate ->
+retarget (skeleton sources) -> frames. Then the VAE is trained on all clips but the held-out ones
+and z_t is stored for every frame. Nothing is written unless every step succeeded.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amorctl.errors import AmorError
+from amorctl.motion.builtin import builtin_clips, source_label
+from amorctl.motion.clips import ClipInfo, MotionLibrary
+from amorctl.motion.dataset import write_dataset
+from amorctl.motion.deepmimic import DEEPMIMIC_LICENCE
+from amorctl.motion.frames import clip_arrays, frame_layout
+from amorctl.motion.importers import ImportOptions, import_file
+from amorctl.motion.kinematics import CharacterKinematics, character_kinematics
+from amorctl.motion.resample import resample_character, resample_source
+from amorctl.motion.retarget import retarget
+from amorctl.motion.source import CharacterMotion
+from amorctl.motion.vae import VaeConfig, encode, encoder_to_bytes, train_vae
+from amorctl.registry import get_registry
+
+USER_LICENCE = "unknown (user-supplied file)"
+#: Clips the VAE holds out when preprocessing the built-in DeepMimic set: one turn in each
+#: direction, whose kind of motion stays represented in training by its sibling clip. (With 20
+#: clips, a held-out one-of-a-kind clip such as ``dance_b`` mostly measures novelty: see
+#: docs/dataset.md.)
+DEEPMIMIC_HOLDOUT: tuple[str, ...] = ("walker/turn_left1", "walker/turn_right1")
+
+
+@dataclass
+class Progress:
+    """Callbacks the CLI uses to draw progress; all optional."""
+
+    clip: Callable[[int, int, str], None] | None = None  # (index, total, clip name) after each clip
+    vae_step: Callable[[int, int, float], None] | None = None  # (step, total steps, loss)
+
+
+@dataclass
+class PreprocessReport:
+    """What :func:`preprocess` did: per-clip rows, VAE errors, timings (seconds)."""
+
+    out: Path
+    character: str
+    fps: float
+    clips: list[dict[str, Any]]
+    num_frames: int
+    vae: dict[str, Any] | None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def gather_inputs(files: Sequence[Path], builtin: str | None) -> list[tuple[str | None, Path, str]]:
+    """(clip name or None for the importer's default, path, licence) of every input, in order."""
+    inputs: list[tuple[str | None, Path, str]] = []
+    if builtin:
+        inputs += [(name, path, DEEPMIMIC_LICENCE) for name, path in builtin_clips(builtin)]
+    for f in files:
+        path = Path(f)
+        lic = DEEPMIMIC_LICENCE if source_label(path).startswith("pybullet_data/") else USER_LICENCE
+        inputs.append((None, path, lic))
+    if not inputs:
+        raise AmorError("no motion given: pass FILES and/or --builtin deepmimic")
+    return inputs
+
+
+def process_clip(
+    path: Path,
+    name: str | None,
+    licence: str,
+    kin: CharacterKinematics,
+    fmt: str | None,
+    joint_map: Path | None,
+) -> tuple[CharacterMotion, dict[str, np.ndarray]]:
+    """Import, resample, retarget one file; returns the character motion and its frame arrays."""
+    spec = kin.spec
+    opts = ImportOptions(
+        name=name,
+        joint_map=joint_map,
+        character=spec.name,
+        joint_names=spec.joint_names(),
+        root_body=spec.root_body,
+        licence=licence,
+    )
+    motion = import_file(path, fmt, opts)
+    hz = float(spec.control_hz)
+    if isinstance(motion, CharacterMotion):
+        if motion.character != spec.name:
+            raise AmorError(f"{path}: holds motion for {motion.character!r}, not {spec.name!r}")
+        char = resample_character(motion, hz)
+    else:
+        char = retarget(resample_source(motion, hz), kin)
+    char = replace(char, source=source_label(path))
+    arrays = clip_arrays(char, kin, hz)
+    for key, a in arrays.items():
+        if not np.isfinite(a).all():
+            frame = int(np.argwhere(~np.isfinite(a))[0][0])
+            raise AmorError(f"{path}: processing produced a non-finite {key} at frame {frame}")
+    return char, arrays
+
+
+def preprocess(
+    files: Sequence[Path],
+    *,
+    character: str,
+    out: Path,
+    builtin: str | None = None,
+    fmt: str | None = None,
+    joint_map: Path | None = None,
+    vae: VaeConfig | None = VaeConfig(),  # noqa: B008 - frozen dataclass, safe as a default
+    progress: Progress | None = None,
+) -> PreprocessReport:
+    """Build a motion dataset at ``out``; AmorError (and no file) on any bad input."""
+    progress = progress or Progress()
+    t0 = time.perf_counter()
+    spec = get_registry().character(character)
+    kin = character_kinematics(spec)
+    inputs = gather_inputs(files, builtin)
+    motions: list[CharacterMotion] = []
+    per_clip: list[dict[str, np.ndarray]] = []
+    for i, (name, path, licence) in enumerate(inputs):
+        char, arrays = process_clip(path, name, licence, kin, fmt, joint_map)
+        if any(m.name == char.name for m in motions):
+            raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
+        motions.append(char)
+        per_clip.append(arrays)
+        if progress.clip:
+            progress.clip(i + 1, len(inputs), char.name)
+    t1 = time.perf_counter()
+
+    lengths = np.array([a["frames"].shape[0] for a in per_clip], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    flat = {k: np.concatenate([a[k] for a in per_clip], axis=0) for k in per_clip[0]}
+    vae_info: dict[str, Any] | None = None
+    encoder_bytes = None
+    z = np.zeros((flat["frames"].shape[0], 0), dtype=np.float32)
+    if vae is not None:
+        names = [m.name for m in motions]
+        if builtin == "deepmimic" and not vae.holdout and not files:
+            vae = replace(vae, holdout=DEEPMIMIC_HOLDOUT)
+        trained = train_vae(flat["frames"], starts, lengths, vae, progress=progress.vae_step, names=names)
+        z = encode(trained.encoder, trained.mean, trained.std, flat["frames"], starts, lengths, vae.window)
+        encoder_bytes = encoder_to_bytes(trained, flat["frames"].shape[1])
+        vae_held = [names[k] for k in trained.heldout_clips]
+        vae_info = {
+            **asdict(vae),
+            "padding": "edge (clamp to the clip's first/last frame)",
+            "heldout_clips": vae_held,
+            "heldout_recon_mse": trained.heldout_error,
+            "heldout_recon_mse_per_clip": dict(zip(vae_held, trained.heldout_per_clip, strict=True)),
+            "untrained_heldout_recon_mse": trained.untrained_error,
+            "train_recon_mse": trained.train_error,
+            "error_units": "mean squared error per feature of standardised frames",
+        }
+    t2 = time.perf_counter()
+
+    clips = tuple(
+        ClipInfo(
+            name=m.name,
+            source=m.source,
+            sha256=m.sha256,
+            licence=m.licence,
+            start=int(s),
+            num_frames=int(n),
+            source_fps=float(m.source_fps),
+            retarget_error=float(m.retarget_error),
+        )
+        for m, s, n in zip(motions, starts, lengths, strict=True)
+    )
+    layout = frame_layout(spec.num_joints, len(spec.end_effectors))
+    library = MotionLibrary(
+        character=spec.name,
+        fps=float(spec.control_hz),
+        joint_names=spec.joint_names(),
+        end_effectors=tuple(spec.end_effectors),
+        clips=clips,
+        frames=flat["frames"],
+        z=z,
+        metadata={
+            "frame_layout": layout,
+            "vae": vae_info,
+            "keypoints": dict(spec.keypoints),
+            "velocities": "forward finite differences at fps; last frame repeats the previous",
+        },
+        **{k: v for k, v in flat.items() if k != "frames"},
+    )
+    clip_stats = {m.name: {**m.stats, "duration_s": float(m.times[-1])} for m in motions}
+    write_dataset(out, library, clip_stats=clip_stats, encoder=encoder_bytes)
+    t3 = time.perf_counter()
+    rows = [
+        {
+            "name": c.name,
+            "source": c.source,
+            "frames": c.num_frames,
+            "duration_s": library.clip_duration(c),
+            "source_fps": c.source_fps,
+            "retarget_error_m": c.retarget_error,
+            **_short_stats(clip_stats[c.name]),
+        }
+        for c in clips
+    ]
+    return PreprocessReport(
+        out=Path(out),
+        character=spec.name,
+        fps=library.fps,
+        clips=rows,
+        num_frames=library.num_frames,
+        vae=vae_info,
+        timings={"clips": t1 - t0, "vae": t2 - t1, "write": t3 - t2, "total": t3 - t0},
+    )
+
+
+def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
+    keep = ("method", "floor_lift_max", "foot_sliding", "foot_sliding_source", "scale")
+    return {k: stats[k] for k in keep if k in stats}

@@ -1,0 +1,191 @@
+"""Learning bar: train the ``quick`` preset on biped20's walking clips, then evaluate.
+
+Trains MOPPO (``quick`` preset, torch-cpu) on the walking clips of the built-in DeepMimic set
+(``walk``, ``walker/*``) for a wall-clock budget, then reports, under uniform weights
+``w = (1/7, ..., 1/7)`` and the deterministic policy (the Gaussian mean):
+
+- survival: the fraction of evaluation envs whose first 10 s episode reaches the time limit
+  without terminating (falling);
+- joint MAE: mean |q - q_ref| over actuated joints and over the steps before each env's first
+  episode ends, in degrees;
+
+and the same two numbers for open-loop replay: the reference's next joint angles sent as PD
+targets. It writes the learning curve (survival, episode length, scalarized return vs wall time)
+to a PNG beside the run directory and prints one line per figure. A benchmark, not a test: no
+timed assertion.
+
+Usage: python benchmarks/learn_biped20_walk.py [--minutes 20] [--out runs/bench-walk] [--eval-envs 64]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from amorctl.config import load_preset, override
+from amorctl.envs.tracking_env import TrackingEnv
+from amorctl.motion.cache import default_dataset
+from amorctl.motion.clips import MotionLibrary
+from amorctl.motion.dataset import load_dataset, write_dataset
+from amorctl.registry import get_registry
+from amorctl.runner import CHECKPOINT_DIR, latest_checkpoint, make_env, train_run
+
+WALKING = ("walk", "walker/")
+
+
+def walking_subset(lib: MotionLibrary) -> MotionLibrary:
+    """The library restricted to its walking clips (names ``walk`` and ``walker/*``)."""
+    keep = [c for c in lib.clips if c.name == "walk" or c.name.startswith("walker/")]
+    if not keep:
+        raise SystemExit(f"no walking clips in the dataset (clips: {[c.name for c in lib.clips]})")
+    index = np.concatenate([np.arange(c.start, c.start + c.num_frames) for c in keep])
+    clips, start = [], 0
+    for c in keep:
+        clips.append(dataclasses.replace(c, start=start))
+        start += c.num_frames
+    arrays = {
+        f.name: getattr(lib, f.name)[index]
+        for f in dataclasses.fields(lib)
+        if isinstance(getattr(lib, f.name), np.ndarray)
+    }
+    return dataclasses.replace(lib, clips=tuple(clips), **arrays)
+
+
+def save_subset(lib: MotionLibrary, path: Path) -> Path:
+    """Write the subset as a dataset file the trainer can load by path."""
+    write_dataset(path, lib)
+    return path
+
+
+def evaluate(env: TrackingEnv, policy, steps: int) -> tuple[float, float]:
+    """(survival fraction, joint MAE in degrees) of each env's first episode under ``policy``."""
+    obs, _ = env.reset(seed=12345)
+    n = env.num_envs
+    active = np.ones(n, dtype=bool)  # still in its first episode
+    survived = np.zeros(n, dtype=bool)
+    err_sum, err_count = 0.0, 0
+    for _ in range(steps):
+        obs, _, terminated, truncated, info = env.step(policy(obs))
+        ended = terminated | truncated
+        ok = active & ~ended & ~info["clip_switched"]
+        if ok.any():
+            q = env.sim.joint_pos()[ok]
+            q_ref = env.library.joint_pos[env.ref_idx[ok]]
+            err_sum += float(np.abs(q - q_ref).sum())
+            err_count += int(q.size)
+        survived |= active & truncated
+        active &= ~ended
+        if not active.any():
+            break
+    return float(survived.mean()), math.degrees(err_sum / max(err_count, 1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--minutes", type=float, default=20.0, help="training wall-clock budget")
+    parser.add_argument("--out", type=Path, default=Path("runs/bench-biped20-walk"))
+    parser.add_argument("--eval-envs", type=int, default=64)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--resume", action="store_true", help="continue a previous benchmark run")
+    args = parser.parse_args()
+
+    character = "biped20"
+    dataset = args.out.parent / f"{args.out.name}-walking.mcap"
+    if not dataset.exists():
+        full = load_dataset(default_dataset(character))
+        save_subset(walking_subset(full), dataset)
+    lib = load_dataset(dataset)
+    print(f"dataset: {dataset} ({len(lib.clips)} walking clips, {lib.num_frames / lib.fps:.1f} s)")
+
+    config = override(
+        load_preset("quick"),
+        env__character=character,
+        env__dataset=str(dataset),
+        run__seed=args.seed,
+        run__iterations=1_000_000,
+        run__checkpoint_every=25,
+    )
+    budget = args.minutes * 60.0
+    began = time.perf_counter()
+    result = train_run(
+        config,
+        args.out,
+        resume=args.resume,
+        stop_when=lambda m: time.perf_counter() - began > budget,
+    )
+    trained_s = time.perf_counter() - began
+    print(
+        f"trained {result.end_iteration - result.start_iteration} iterations in {trained_s / 60:.1f} min; "
+        f"{result.last_metrics.get('env_steps', 0):,.0f} env steps total"
+    )
+
+    # --- evaluation: uniform weights, deterministic policy, 10 s episodes
+    from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
+
+    spec = get_registry().character(character)
+    steps = int(10 * spec.control_hz)
+    uniform = np.full(7, 1 / 7)
+    env = TrackingEnv(
+        spec,
+        lib,
+        "tracking7",
+        num_envs=args.eval_envs,
+        max_episode_steps=steps,
+        fixed_weights=uniform,
+        seed=1,
+    )
+    trainer = TorchCpuBackend().make_trainer(make_env(override(config, env__num_envs=4)), config)
+    trainer.load_state_dict(latest_checkpoint(args.out).trainer)
+    surv, mae = evaluate(env, lambda o: trainer.act(o), steps)
+
+    def replay(_obs: np.ndarray) -> np.ndarray:
+        targets = env.library.joint_pos[env.ref_idx + 1]
+        return targets if env.action_mode == "absolute" else np.zeros_like(targets)
+
+    surv_open, mae_open = evaluate(env, replay, steps)
+    print(f"policy (uniform w):  survival over 10 s: {100 * surv:.1f}%   joint MAE: {mae:.2f} deg")
+    print(f"open-loop replay:    survival over 10 s: {100 * surv_open:.1f}%   joint MAE: {mae_open:.2f} deg")
+
+    # --- learning curve
+    rows = list(csv.DictReader((args.out / "metrics.csv").open()))
+    t = np.array([float(r["wall_time_s"]) for r in rows]) / 60
+    png = args.out.parent / f"{args.out.name}-curve.png"
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+        for ax, key, label in zip(
+            axes,
+            ("episode/survival", "episode/length", "return/scalarized"),
+            ("training survival (last 100 episodes)", "episode length (steps)", "return · w"),
+            strict=True,
+        ):
+            ax.plot(t, [float(r[key]) for r in rows])
+            ax.set_xlabel("wall time (min; per resumed segment)")
+            ax.set_title(label)
+            ax.grid(alpha=0.3)
+        fig.suptitle(
+            f"biped20 walking, quick preset: eval survival {100 * surv:.0f}% "
+            f"(open loop {100 * surv_open:.0f}%), MAE {mae:.1f}° (open loop {mae_open:.1f}°)"
+        )
+        fig.tight_layout()
+        fig.savefig(png, dpi=110)
+        print(f"learning curve: {png}")
+    except ImportError:
+        print("learning curve: matplotlib not installed, skipped")
+    print(f"checkpoints: {args.out / CHECKPOINT_DIR}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""Retargeting: direct mapping onto humanoid36 is exact; IK onto biped20 keeps feet on/above the floor."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amorctl.motion.importers import ImportOptions, import_file
+from amorctl.motion.resample import resample_source
+from amorctl.motion.retarget import keypoint_errors, retarget, retarget_direct, smooth_lift
+from amorctl.motion.source import CharacterMotion, keypoint_positions
+
+
+def _source(clip_path, name):
+    return resample_source(import_file(clip_path(name), None, ImportOptions(name=name)), 50.0)
+
+
+def test_direct_mapping_reproduces_every_key_point(clip_path, kinematics):
+    """Without the floor lift, humanoid36's bodies sit exactly on the DeepMimic skeleton's joints."""
+    kin = kinematics("humanoid36")
+    src = _source(clip_path, "cartwheel")
+    out = retarget_direct(src, kin)
+    unlifted = CharacterMotion(**{**out.__dict__, "root_pos": src.root_pos})
+    err = keypoint_errors(unlifted, keypoint_positions(src), kin)
+    assert err.max() < 1e-6
+    assert out.stats["unmapped_joints"] == ["right_toe", "left_toe"]
+    lo, hi = kin.joint_ranges[:, 0], kin.joint_ranges[:, 1]
+    assert ((out.joint_pos >= lo - 1e-6) & (out.joint_pos <= hi + 1e-6)).mean() > 0.99
+
+
+@pytest.mark.parametrize(
+    ("character", "clip"), [("humanoid36", "run"), ("biped20", "walk"), ("biped20", "roll")]
+)
+def test_feet_stay_above_the_floor_within_1cm(character, clip, clip_path, kinematics):
+    kin = kinematics(character)
+    out = retarget(_source(clip_path, clip), kin)
+    qpos = kin.qpos(out.root_pos, out.root_quat, out.joint_pos)
+    feet, _ = kin.body_poses(qpos, [kin.spec.keypoints["left_foot"], kin.spec.keypoints["right_foot"]])
+    assert kin.lowest_points(qpos).min() >= -0.01  # every collision geom, feet included
+    assert np.isfinite(feet).all()
+
+
+def test_biped20_ik_error_limits_and_sliding(clip_path, kinematics):
+    kin = kinematics("biped20")
+    out = retarget(_source(clip_path, "walk"), kin)
+    assert out.stats["method"] == "ik"
+    assert 0.2 < out.stats["scale"] < 0.4  # OP3 legs are about 0.3 of the DeepMimic humanoid's
+    assert out.retarget_error < 0.03  # mean key-point error, m (measured 0.017)
+    assert out.stats["keypoint_error_per_point"]["left_foot"] < 0.01
+    lo, hi = kin.joint_ranges[:, 0], kin.joint_ranges[:, 1]
+    assert ((out.joint_pos >= lo - 1e-6) & (out.joint_pos <= hi + 1e-6)).all()
+    knees = [kin.spec.joint_names().index(n) for n in ("l_knee", "r_knee")]
+    assert (out.joint_pos[:, knees[0]] > -0.1).all() and (
+        out.joint_pos[:, knees[1]] < 0.1
+    ).all()  # bend forward
+    assert out.stats["foot_sliding"] < 0.03  # m/s over contact frames
+
+
+def test_smooth_lift_covers_what_is_needed():
+    needed = np.zeros(50)
+    needed[20] = 0.05
+    needed[30:33] = 0.02
+    lift = smooth_lift(needed)
+    assert (lift >= needed - 1e-15).all()
+    assert np.abs(np.diff(lift)).max() < 0.05 / 2
