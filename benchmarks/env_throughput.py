@@ -4,11 +4,13 @@ For each character and batch size the script times full ``TrackingEnv.step`` cal
 actuator model, observations, rewards, resets) while replaying the reference with a little noise,
 and, in the same run, the single-thread ``mj_step`` rate on the same model from the same states.
 The ratio is ``env steps/s / (single-thread mj_step rate / substeps * nthread)``; 1.0 would be
-perfect scaling with no glue cost. The library is synthetic (swaying clips), so no dataset is
-needed. One line per setting, ending in ``ratio: X.XX``. Run with ``nice -n 10`` on shared
-machines; figures are noisy there.
+perfect scaling with no glue cost. By default the clips are synthetic (swaying in place), so no
+dataset is needed; ``--clips builtin`` tracks the preprocessed DeepMimic clips instead. One line
+per setting, ending in ``ratio: X.XX``. Run with ``nice -n 10`` on shared machines; figures are
+noisy there.
 
     python benchmarks/env_throughput.py [--characters humanoid36 biped20] [--envs 256 1024]
+        [--clips synthetic|builtin] [--seconds 4]
 """
 
 from __future__ import annotations
@@ -49,10 +51,22 @@ def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -
     return best
 
 
-def measure(character: str, num_envs: int, nthread: int, seconds: float, seed: int = 0) -> dict[str, float]:
-    """Env steps/s and the ratio for one setting."""
+def measure(
+    character: str, num_envs: int, nthread: int, seconds: float, clips: str = "synthetic", seed: int = 0
+) -> dict[str, float]:
+    """Env steps/s and the ratio for one setting.
+
+    ``clips``: ``"synthetic"`` (swaying clips, no data needed) or ``"builtin"`` (the character's
+    preprocessed DeepMimic dataset from the user cache; built on first use, which takes minutes).
+    """
     ch = get_registry().character(character)
-    lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=seed)
+    if clips == "builtin":
+        from amorctl.motion.cache import default_dataset
+        from amorctl.motion.dataset import load_dataset
+
+        lib = load_dataset(default_dataset(character))
+    else:
+        lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=seed)
     env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=seed, max_episode_steps=200)
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
@@ -106,10 +120,11 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", type=int, default=[256, 1024])
     parser.add_argument("--nthread", type=int, default=2)
     parser.add_argument("--seconds", type=float, default=4.0, help="timed seconds per setting")
+    parser.add_argument("--clips", choices=["synthetic", "builtin"], default="synthetic")
     args = parser.parse_args()
     for character in args.characters:
         for n in args.envs:
-            r = measure(character, n, args.nthread, args.seconds)
+            r = measure(character, n, args.nthread, args.seconds, args.clips)
             print(
                 f"{character:<12} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
                 f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "

@@ -65,7 +65,7 @@ def test_dirichlet_weights_reach_actor_and_critic_inputs() -> None:
     norm = trainer.normalizer
     for name in ("actor", "critic"):
         x = seen[name][0]
-        raw = x * torch.sqrt(norm.var + norm.eps).float() + norm.mean.float()  # undo the normalization
+        raw = x * (torch.sqrt(norm.var) + norm.eps).float() + norm.mean.float()  # undo the normalization
         np.testing.assert_allclose(raw[:, -2:].numpy(), weights, atol=1e-5)
     assert np.allclose(weights.sum(1), 1, atol=1e-6)
     assert weights[:, 0].std() > 0.1  # Dirichlet draws differ between envs

@@ -19,13 +19,11 @@ _DEFAULT = VaeConfig()
 
 
 def preprocess(
+    character: CharacterOpt,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Dataset file to write (.mcap).")],
     files: Annotated[
         list[Path] | None, typer.Argument(help="Motion files (DeepMimic .txt/.json, .bvh, .npz).")
     ] = None,
-    character: CharacterOpt = "humanoid36",
-    out: Annotated[Path, typer.Option("--out", "-o", help="Dataset file to write (.mcap).")] = Path(
-        "motion.mcap"
-    ),
     builtin: Annotated[
         str | None, typer.Option("--builtin", help="Add a built-in motion set: 'deepmimic' (20 clips).")
     ] = None,
@@ -102,7 +100,8 @@ def preprocess(
         )
         return
     table = Table(title=f"{report.out} ({report.character}, {report.fps:g} Hz)")
-    for col in ("clip", "frames", "seconds", "source fps", "retarget err (m)", "floor lift (m)"):
+    table.add_column("clip", no_wrap=True)
+    for col in ("frames", "seconds", "source fps", "retarget err (m)", "floor lift (m)"):
         table.add_column(col)
     for c in report.clips:
         table.add_row(

@@ -158,7 +158,7 @@ class BatchSim:
         self.torque = np.zeros((n, self.substeps, self.num_joints))
 
         if self.servo:
-            from amorctl.plugins.characters.actuators import CommandDelay
+            from amorctl.plugins.characters.actuators import CommandDelay, servo_torque
 
             joints = character.joints
             self.kp = np.array([j.kp for j in joints])
@@ -166,6 +166,7 @@ class BatchSim:
             self.torque_limit = np.array([j.torque_limit for j in joints])
             self.no_load_speed = character.actuator.no_load_speed
             self.delay = CommandDelay(character.actuator.latency_steps, n, self.num_joints)
+            self.servo_torque = servo_torque
 
     # --- state access ---------------------------------------------------------------------------
 
@@ -272,8 +273,11 @@ class BatchSim:
             self.torque[:] = self._out_sens[:, :, nsens : nsens + jn] * self.gear
         else:
             for sub in range(self.substeps):
-                target = self.delay.push(pd_target)
-                tau = servo_torque_batch(self, target)
+                target = self.delay.push(pd_target)  # the command of `latency_steps` ago
+                tau = self.servo_torque(
+                    target, self.joint_pos(), self.joint_vel(), self.kp, self.kd, self.torque_limit,
+                    self.no_load_speed,
+                )  # fmt: skip
                 self.torque[:, sub] = tau
                 self.ctrl[:, 0, self.actuators] = tau / self.gear
                 qv_prev = self.qvel.copy()
@@ -297,18 +301,3 @@ class BatchSim:
     def close(self) -> None:
         """Shut the thread pool down."""
         self._pool.close()
-
-
-def servo_torque_batch(sim: BatchSim, target: np.ndarray) -> np.ndarray:
-    """The servo model's joint torques [N, J] for delayed targets [N, J] at the current state."""
-    from amorctl.plugins.characters.actuators import servo_torque
-
-    return servo_torque(
-        target,
-        sim.joint_pos(),
-        sim.joint_vel(),
-        sim.kp,
-        sim.kd,
-        sim.torque_limit,
-        sim.no_load_speed,
-    )

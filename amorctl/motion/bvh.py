@@ -41,6 +41,7 @@ from amorctl.motion.source import (
     SourceMotion,
     check_finite,
     check_times,
+    deepmimic_skeleton,
 )
 
 _AXES = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
@@ -295,7 +296,7 @@ def bvh_to_source(
         gpos = gpos @ C_DM_TO_MJ.T
         rest = rest @ C_DM_TO_MJ.T
     idx = [names.index(jmap.joints[c]) for c in CANONICAL_JOINTS]
-    parents = _canonical_parents()
+    parents = deepmimic_skeleton().parents
     offsets = np.zeros((len(CANONICAL_JOINTS), 3))
     local = np.zeros((num_frames, len(CANONICAL_JOINTS), 4))
     for k, b in enumerate(idx):
@@ -327,12 +328,6 @@ def bvh_to_source(
         local_quat=local,
         source_fps=1.0 / bvh.frame_time,
     )
-
-
-def _canonical_parents() -> tuple[int, ...]:
-    from amorctl.motion.source import deepmimic_skeleton
-
-    return deepmimic_skeleton().parents
 
 
 def _keypoints(

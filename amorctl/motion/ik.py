@@ -24,6 +24,8 @@ the scaled (unpinned) source key points; the foot sliding before and after is re
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mink
 import mujoco
 import numpy as np
@@ -56,7 +58,7 @@ def source_leg_length(motion: SourceMotion) -> float:
     skel = motion.skeleton
     zero = np.zeros((1, len(skel.names), 4))
     zero[..., 0] = 1.0
-    rest = SourceMotion(**{**motion.__dict__, "root_pos": np.zeros((1, 3)), "local_quat": zero})
+    rest = replace(motion, root_pos=np.zeros((1, 3)), local_quat=zero)
     kp = keypoint_positions(rest)
     return float(kp["root"][0, 2] - 0.5 * (kp["left_foot"][0, 2] + kp["right_foot"][0, 2]))
 
@@ -75,7 +77,7 @@ def target_geometry(kin: CharacterKinematics) -> tuple[float, float, dict[str, n
     sole = []
     for g in range(m.ngeom):
         if m.geom_bodyid[g] in foot_bodies or m.body_parentid[m.geom_bodyid[g]] in foot_bodies:
-            sole.append(kin._geom_bottom(g))
+            sole.append(kin.geom_bottom(g))
     foot_height = float(feet[0][2] - min(sole)) if sole else 0.0
     rest = {k: d.xquat[kin.body_id(b)].copy() for k, b in kp.items()}
     return leg, foot_height, rest
@@ -192,4 +194,4 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         np.mean([sliding(feet_pos[:, i], contacts[f], fps) for i, f in enumerate(FEET)])
     )
     stats["contact_fraction"] = float(np.mean([contacts[f].mean() for f in FEET]))
-    return CharacterMotion(**{**out.__dict__, "stats": stats})
+    return replace(out, stats=stats)

@@ -58,14 +58,15 @@ class CharacterKinematics:
     def lowest_points(self, qpos: np.ndarray) -> np.ndarray:
         """[T] the lowest world z of the character's collision geometry in each frame."""
         out = np.zeros(qpos.shape[0])
-        geoms = self._collision_geoms()
+        geoms = self.collision_geoms()
         for t in range(qpos.shape[0]):
             self.data.qpos[:] = qpos[t]
             mujoco.mj_kinematics(self.model, self.data)
-            out[t] = min(self._geom_bottom(g) for g in geoms)
+            out[t] = min(self.geom_bottom(g) for g in geoms)
         return out
 
-    def _collision_geoms(self) -> list[int]:
+    def collision_geoms(self) -> list[int]:
+        """Geoms of the character (not the world body) that take part in contacts."""
         m = self.model
         return [
             g
@@ -75,7 +76,7 @@ class CharacterKinematics:
             and (m.geom_contype[g] or m.geom_conaffinity[g])
         ]
 
-    def _geom_bottom(self, g: int) -> float:
+    def geom_bottom(self, g: int) -> float:
         """Lowest z of one geom (exact for sphere, capsule, box, cylinder; bounding sphere else)."""
         m, d = self.model, self.data
         z = d.geom_xpos[g, 2]

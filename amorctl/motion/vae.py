@@ -159,7 +159,6 @@ def train_vae(
     std = frames[train_rows].std(axis=0)
     std = np.where(std < 1e-6, 1.0, std)
     norm = torch.from_numpy(((frames - mean) / std).astype(np.float32))
-    all_idx = window_indices(starts, lengths, cfg.window)
     train_idx = window_indices(starts[train_clips], lengths[train_clips], cfg.window)
     held_idx = window_indices(starts[held], lengths[held], cfg.window) if held else None
 
@@ -192,7 +191,6 @@ def train_vae(
                 progress(step, total, float(loss.detach()))
     enc.eval()
     dec.eval()
-    del all_idx
     return TrainedVae(
         config=cfg,
         encoder=enc,

@@ -201,13 +201,21 @@ def test_unknown_character(tmp_path, capsys, clip_path):
 
 def test_missing_file_and_map_entry(tmp_path, capsys):
     out = tmp_path / "d.mcap"
-    assert main(["preprocess", str(tmp_path / "nope.txt"), "--out", str(out), "--no-vae"]) != 0
+    assert (
+        main(["preprocess", str(tmp_path / "nope.txt"), "-c", "humanoid36", "--out", str(out), "--no-vae"])
+        != 0
+    )
     assert "nope.txt: motion file not found" in capsys.readouterr().err
     bvh = tmp_path / "a.bvh"
     bvh.write_text(_bvh([GOOD_ROW]))
     partial = tmp_path / "partial.toml"
     partial.write_text("\n".join(MAP.splitlines()[:-1]) + "\n")  # left_elbow has no entry
-    assert main(["preprocess", str(bvh), "--map", str(partial), "--out", str(out), "--no-vae"]) != 0
+    assert (
+        main(
+            ["preprocess", str(bvh), "--map", str(partial), "-c", "humanoid36", "--out", str(out), "--no-vae"]
+        )
+        != 0
+    )
     err = capsys.readouterr().err
     assert "partial.toml" in err and "left_elbow" in err
     assert not out.exists()

@@ -71,10 +71,12 @@ class RunningNormalizer(nn.Module):
     """Running mean/std of observations (parallel Welford / Chan update), saved with the policy.
 
     Buffers: ``mean`` [D], ``var`` [D] (float64 for exact accumulation), ``count`` [] float64.
-    ``forward(x [B, D]) -> clip((x - mean) / sqrt(var + eps), -clip, clip)`` in float32.
+    ``forward(x [B, D]) -> clip((x - mean) / (sqrt(var) + eps), -clip, clip)`` in float32. The
+    additive ``eps`` (as rsl_rl's) keeps near-constant features (a reference that barely varies,
+    the weights under ``--fixed-weights``) from being blown up to ±clip by tiny deviations.
     """
 
-    def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-8) -> None:
+    def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-2) -> None:
         super().__init__()
         self.clip = clip
         self.eps = eps
@@ -100,6 +102,6 @@ class RunningNormalizer(nn.Module):
         self.count.copy_(total)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        std = torch.sqrt(self.var + self.eps).to(torch.float32)
+        std = (torch.sqrt(self.var) + self.eps).to(torch.float32)
         y = (x - self.mean.to(torch.float32)) / std
         return torch.clamp(y, -self.clip, self.clip)
