@@ -129,6 +129,18 @@ def latest_checkpoint(out: Path) -> Checkpoint:
         raise AmorError(f"{err}{older}") from None
 
 
+def load_policy(out: Path) -> tuple[Any, TrainConfig, Checkpoint]:
+    """The newest checkpoint's policy of the run in ``out``, for inference, with the run's config.
+
+    Returns ``(policy, config, checkpoint)``; ``policy(obs [N, D]) -> actions [N, A]`` and
+    ``policy.values(obs) -> [N, m]``, built by the run's backend from arrays and JSON only.
+    """
+    config = load_run_config(out)
+    ckpt = latest_checkpoint(out)
+    backend = get_registry().backend(config.run.backend).make()
+    return backend.load_policy(ckpt.trainer, config), config, ckpt
+
+
 def _run_meta(config: TrainConfig, env: VectorEnv) -> dict[str, Any]:
     e = config.env
     return {

@@ -76,6 +76,10 @@ class SnapshotEnv(Protocol):
 
 
 class TrainerFactory(Protocol):
-    """What a backend object offers to make a trainer (``BackendSpec.make()`` returns such a backend)."""
+    """What a backend object offers to the runner (``BackendSpec.make()`` returns such a backend)."""
 
     def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Trainer: ...
+
+    def load_policy(self, trainer_state: State, config: TrainConfig) -> Any:
+        """An inference policy from a checkpoint: ``policy(obs) -> actions``, ``policy.values(obs)``."""
+        ...

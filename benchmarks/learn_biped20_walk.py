@@ -33,6 +33,7 @@ from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.clips import MotionLibrary
 from amorctl.motion.dataset import load_dataset, write_dataset
+from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
 from amorctl.registry import get_registry
 from amorctl.runner import CHECKPOINT_DIR, latest_checkpoint, make_env, train_run
 
@@ -95,6 +96,12 @@ def main() -> None:
     parser.add_argument("--eval-envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resume", action="store_true", help="continue a previous benchmark run")
+    parser.add_argument(
+        "--precision",
+        choices=("auto", "fp32", "bf16"),
+        default="auto",
+        help="network precision; auto = bf16 autocast where the CPU has native bf16",
+    )
     args = parser.parse_args()
 
     character = "biped20"
@@ -112,7 +119,9 @@ def main() -> None:
         run__seed=args.seed,
         run__iterations=1_000_000,
         run__checkpoint_every=25,
+        ppo__bf16=args.precision == "bf16" or (args.precision == "auto" and bf16_supported()),
     )
+    print(f"config: quick preset, bf16 autocast {'on' if config.ppo.bf16 else 'off'}")
     budget = args.minutes * 60.0
     began = time.perf_counter()
     result = train_run(
@@ -128,8 +137,6 @@ def main() -> None:
     )
 
     # --- evaluation: uniform weights, deterministic policy, 10 s episodes
-    from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
-
     spec = get_registry().character(character)
     steps = int(10 * spec.control_hz)
     uniform = np.full(7, 1 / 7)

@@ -108,3 +108,29 @@ def test_bf16_autocast_keeps_fp32_weights_and_finite_losses() -> None:
     metrics = trainer.iteration()
     assert all(p.dtype == torch.float32 for p in trainer.actor.parameters())
     assert np.isfinite(metrics["loss/total"]) and np.isfinite(metrics["kl"])
+
+
+def test_moppo_iterates_on_the_tracking_env() -> None:
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.envs.tracking_env import TrackingEnv
+    from amorctl.registry import get_registry
+
+    spec = get_registry().character("biped20")
+    env = TrackingEnv(
+        spec,
+        synthetic_library(spec, num_clips=2, seconds=1.0),
+        "tracking7",
+        num_envs=8,
+        max_episode_steps=20,
+        action_mode="residual",
+        nthread=1,
+    )
+    config = tiny_config(ppo__num_steps=25, network__init_std=0.1)
+    trainer = TorchCpuBackend().make_trainer(env, config)
+    metrics = trainer.iteration()
+    env.close()
+    names = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
+    assert trainer.names == names
+    assert all(np.isfinite(metrics[f"reward/{n}"]) for n in names)
+    assert np.isfinite(metrics["loss/total"]) and metrics["episodes"] >= 8  # 25 steps > 20-step limit
+    assert metrics["env_steps"] == 8 * 25

@@ -19,6 +19,7 @@ from amorctl.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
 from amorctl.cli.main import main
 from amorctl.config import TrainConfig, override
 from amorctl.errors import AmorError
+from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
 from amorctl.runner import check_compatible, make_env, train_run
 from amorctl.trainer import State
 
@@ -250,3 +251,18 @@ def test_checkpoint_of_another_character_is_refused() -> None:
     ckpt = Checkpoint(Path("runs/x/checkpoints/iter_000010.json"), 10, meta, State(), None)
     with pytest.raises(AmorError, match="character 'humanoid36', this run has 'biped20'"):
         check_compatible(ckpt, config, env)
+
+
+def test_load_policy_reproduces_the_trainers_actions(tmp_path: Path) -> None:
+    from amorctl.runner import load_policy
+
+    out = tmp_path / "run"
+    train_run(tiny(run__iterations=2), out)
+    policy, config, ckpt = load_policy(out)
+    assert ckpt.iteration == 2 and policy.objectives == ("right", "left")
+    backend = TorchCpuBackend()
+    trainer = backend.make_trainer(make_env(config), config)
+    trainer.load_state_dict(ckpt.trainer)
+    obs = np.random.default_rng(0).normal(size=(5, policy.obs_dim)).astype(np.float32)
+    np.testing.assert_array_equal(policy(obs), trainer.act(obs))
+    assert policy.values(obs).shape == (5, 2)

@@ -14,7 +14,9 @@ Method, per clip (all at the control rate):
    frame: root position and orientation, feet position and orientation (kept flat on the ground
    plane, turned to the source foot's heading: a robot's feet are long relative to its legs, and
    a pitched foot would go through the floor), hands and head position,
-   a weak posture task towards the character's standing pose, and the joint limits.
+   a weak posture task towards the character's standing pose, the joint limits, and a joint-speed
+   bound (``MAX_JOINT_SPEED``) that keeps the solver from flipping a joint through its range
+   between two frames when a target is out of reach.
 4. Floor: the root is lifted wherever collision geometry dips below z = 0
    (:func:`amorctl.motion.retarget.lift_to_floor`).
 
@@ -47,7 +49,7 @@ COSTS = {  # key point -> (position cost, orientation cost)
 }
 POSTURE_COST = 0.05
 DAMPING = 1e-3
-IK_DT = 1.0  # integration step of the differential IK (unitless: one full step per iteration)
+MAX_JOINT_SPEED = 30.0  # rad/s bound on every actuated joint between frames (0 = unbounded)
 ITERATIONS_FIRST = 50
 ITERATIONS = 10
 FEET = ("left_foot", "right_foot")
@@ -157,7 +159,9 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
     q0[kin.root_qpos + 3 : kin.root_qpos + 7] = src_quat["root"][0]
     posture.set_target(q0)
     config.update(q0)
-    limits = [mink.ConfigurationLimit(model)]
+    limits: list = [mink.ConfigurationLimit(model)]
+    if MAX_JOINT_SPEED > 0:
+        limits.append(mink.VelocityLimit(model, {n: MAX_JOINT_SPEED for n in kin.spec.joint_names()}))
     all_tasks = [*tasks.values(), posture]
 
     num_frames = motion.times.shape[0]
@@ -166,9 +170,15 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         for key, task in tasks.items():
             quat = quat_mul(src_quat[key][t], rest[key]) if key in src_quat else rest[key]
             task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3(quat), targets[key][t]))
-        for _ in range(ITERATIONS_FIRST if t == 0 else ITERATIONS):
-            vel = mink.solve_ik(config, all_tasks, IK_DT, solver="daqp", damping=DAMPING, limits=limits)
-            config.integrate_inplace(vel, IK_DT)
+        # The first frame converges from the standing pose without a speed bound; later frames
+        # split one control period over their iterations, so the speed bound holds per frame.
+        iters = ITERATIONS_FIRST if t == 0 else ITERATIONS
+        dt = 1.0 if t == 0 else 1.0 / (fps * iters)
+        for _ in range(iters):
+            vel = mink.solve_ik(
+                config, all_tasks, dt, solver="daqp", damping=DAMPING, limits=limits[:1] if t == 0 else limits
+            )
+            config.integrate_inplace(vel, dt)
         qpos[t] = config.q
     r = kin.root_qpos
     out = CharacterMotion(

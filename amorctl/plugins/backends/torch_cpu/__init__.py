@@ -15,6 +15,7 @@ from amorctl.config import TrainConfig
 from amorctl.errors import AmorError
 from amorctl.registry import hookimpl
 from amorctl.specs import BackendSpec
+from amorctl.trainer import State
 from amorctl.vecenv import VectorEnv
 
 NAME = "torch-cpu"
@@ -57,6 +58,13 @@ class TorchCpuBackend:
         if config.ppo.bf16 and not bf16_supported():
             raise AmorError("[ppo] bf16 = true, but this CPU has no native bf16 support (AVX512-BF16 or AMX)")
         return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed)
+
+    def load_policy(self, trainer_state: State, config: TrainConfig) -> Any:
+        """A :class:`~amorctl.plugins.backends.torch_cpu.policy.TorchPolicy` from a checkpoint's
+        trainer state (inference only: actor, critic, normalizer)."""
+        from amorctl.plugins.backends.torch_cpu.policy import TorchPolicy
+
+        return TorchPolicy(trainer_state, config.network)
 
 
 def bf16_supported() -> bool:

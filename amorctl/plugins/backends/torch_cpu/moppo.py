@@ -46,6 +46,7 @@ from amorctl.trainer import State
 from amorctl.vecenv import VectorEnv
 
 EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
+LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
 
 
 @dataclass
@@ -316,9 +317,9 @@ class MOPPOTrainer:
     def _adapt_learning_rate(self, kl: float) -> None:
         """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
         if kl > 2.0 * self.cfg.desired_kl:
-            self.learning_rate = max(1e-5, self.learning_rate / 1.5)
+            self.learning_rate = max(LR_MIN, self.learning_rate / 1.5)
         elif 0.0 < kl < 0.5 * self.cfg.desired_kl:
-            self.learning_rate = min(1e-2, self.learning_rate * 1.5)
+            self.learning_rate = min(LR_MAX, self.learning_rate * 1.5)
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate
 

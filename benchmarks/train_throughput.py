@@ -1,0 +1,69 @@
+"""Training throughput of the presets on this machine: env steps/s and where the time goes.
+
+For each preset, builds the tracking env (biped20, built-in clips) and the MOPPO trainer exactly as
+``amorctl train`` does, runs one warm-up iteration and ``--iterations`` timed ones, and prints env
+steps/s with the fraction of wall time spent in the env (``env.step``: physics, rewards,
+observations, resets), in the networks (rollout forward passes, GAE, the update) and in glue (the
+rest: buffers, episode statistics, normalizer). ``--num-envs`` overrides the preset's env count
+(the paper's 8192 envs take minutes per iteration on 2 cores; the per-step rates scale linearly).
+
+Usage: python benchmarks/train_throughput.py [--presets quick paper] [--iterations 2]
+       [--num-envs N] [--precision fp32|bf16|both] [--threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+
+import torch
+
+from amorctl.config import load_preset, override
+from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
+from amorctl.runner import make_env
+
+
+def measure(preset: str, bf16: bool, iterations: int, num_envs: int | None) -> dict[str, float]:
+    """Median env steps/s and time fractions over ``iterations`` iterations after one warm-up."""
+    config = override(load_preset(preset), ppo__bf16=bf16)
+    if num_envs:
+        config = override(config, env__num_envs=num_envs)
+    backend = TorchCpuBackend()
+    env = make_env(config, backend)
+    trainer = backend.make_trainer(env, config)
+    trainer.iteration()
+    runs = [trainer.iteration() for _ in range(iterations)]
+    env.close()
+    keys = ("env_steps_per_s", "time/env_frac", "time/network_frac", "time/glue_frac", "time/iteration_s")
+    out = {k: statistics.median(r[k] for r in runs) for k in keys}
+    out["num_envs"] = config.env.num_envs
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--presets", nargs="+", default=["quick", "paper"])
+    parser.add_argument("--iterations", type=int, default=2)
+    parser.add_argument("--num-envs", type=int, default=None)
+    parser.add_argument("--precision", choices=("fp32", "bf16", "both"), default="both")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    modes = {"fp32": [False], "bf16": [True], "both": [False, True]}[args.precision]
+    if not bf16_supported():
+        modes = [m for m in modes if not m] or [False]
+    for preset in args.presets:
+        for bf16 in modes:
+            r = measure(preset, bf16, args.iterations, args.num_envs)
+            print(
+                f"{preset:6s} {'bf16' if bf16 else 'fp32'}  {int(r['num_envs']):5d} envs  "
+                f"{r['env_steps_per_s']:8,.0f} env steps/s  ({r['time/iteration_s']:.1f} s/iteration)  "
+                f"env {100 * r['time/env_frac']:4.1f}%  network {100 * r['time/network_frac']:4.1f}%  "
+                f"glue {100 * r['time/glue_frac']:4.1f}%"
+            )
+
+
+if __name__ == "__main__":
+    main()
