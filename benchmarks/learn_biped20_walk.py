@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from amorctl.config import load_preset, override
+from amorctl.config import load_config, load_preset, override
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.clips import MotionLibrary
@@ -96,6 +96,7 @@ def main() -> None:
     parser.add_argument("--eval-envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resume", action="store_true", help="continue a previous benchmark run")
+    parser.add_argument("--eval-only", action="store_true", help="evaluate the run's newest checkpoint")
     parser.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16"),
@@ -113,7 +114,7 @@ def main() -> None:
     print(f"dataset: {dataset} ({len(lib.clips)} walking clips, {lib.num_frames / lib.fps:.1f} s)")
 
     config = override(
-        load_preset("quick"),
+        load_config(args.out / "config.toml") if args.eval_only else load_preset("quick"),
         env__character=character,
         env__dataset=str(dataset),
         run__seed=args.seed,
@@ -124,17 +125,18 @@ def main() -> None:
     print(f"config: quick preset, bf16 autocast {'on' if config.ppo.bf16 else 'off'}")
     budget = args.minutes * 60.0
     began = time.perf_counter()
-    result = train_run(
-        config,
-        args.out,
-        resume=args.resume,
-        stop_when=lambda m: time.perf_counter() - began > budget,
-    )
-    trained_s = time.perf_counter() - began
-    print(
-        f"trained {result.end_iteration - result.start_iteration} iterations in {trained_s / 60:.1f} min; "
-        f"{result.last_metrics.get('env_steps', 0):,.0f} env steps total"
-    )
+    if not args.eval_only:
+        result = train_run(
+            config,
+            args.out,
+            resume=args.resume,
+            stop_when=lambda m: time.perf_counter() - began > budget,
+        )
+        trained_s = time.perf_counter() - began
+        print(
+            f"trained {result.end_iteration - result.start_iteration} iterations in {trained_s / 60:.1f} min; "
+            f"{result.last_metrics.get('env_steps', 0):,.0f} env steps total"
+        )
 
     # --- evaluation: uniform weights, deterministic policy, 10 s episodes
     spec = get_registry().character(character)
@@ -146,6 +148,7 @@ def main() -> None:
         "tracking7",
         num_envs=args.eval_envs,
         max_episode_steps=steps,
+        action_mode=config.env.action_mode,
         fixed_weights=uniform,
         seed=1,
     )

@@ -11,22 +11,41 @@ from amorctl.vecenv import VectorEnv
 
 
 class FixedWeights:
-    """Train plain PPO with one weight vector: every episode's ``w`` is replaced by ``fixed``.
+    """Run any env with weights the caller chooses instead of the env's Dirichlet draws.
 
-    The env's own weight draw is ignored: the last m observation entries (also in
-    ``info["final_obs"]``) and :attr:`weights` report ``fixed`` instead. Rewards stay vectors; the
-    trainer scalarizes them with ``fixed``. Everything else (``get_state``, ``reward_space``, ...)
-    is the wrapped env's.
+    ``fixed`` is one weight vector ``[m]`` for every env (plain PPO, evaluation) or one per env
+    ``[N, m]`` (a Pareto sweep: one ``w`` per environment). :meth:`set_weights` changes them at
+    any time (weight schedules, live tuning): the next observation carries the new weights. The
+    last m observation entries (also in ``info["final_obs"]``) and :attr:`weights` report them.
+    Rewards stay vectors; the trainer scalarizes them with these weights. Everything else
+    (``get_state``, ``reward_space``, ...) is the wrapped env's.
     """
 
     def __init__(self, env: VectorEnv, fixed: np.ndarray) -> None:
-        m = len(env.reward_space.names)
-        fixed = np.asarray(fixed, dtype=np.float32).reshape(-1)
-        if fixed.shape != (m,):
-            raise AmorError(f"fixed weights have {fixed.shape[0]} entries, the env has {m} objectives")
         self.env = env
-        self.fixed = fixed
-        self._tiled = np.tile(fixed, (env.num_envs, 1))
+        self._tiled = np.zeros((env.num_envs, len(env.reward_space.names)), dtype=np.float32)
+        self.set_weights(fixed)
+
+    @property
+    def fixed(self) -> np.ndarray:
+        """[N, m] float32: the weights in force."""
+        return self._tiled.copy()
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Use ``weights`` ([m] for all envs, or [N, m]) from the next observation on.
+
+        Raises:
+            AmorError: wrong shape, or a row that is not on the simplex.
+        """
+        n, m = self._tiled.shape
+        w = np.asarray(weights, dtype=np.float64)
+        if w.ndim == 1:
+            w = np.broadcast_to(w, (n, w.shape[0]))
+        if w.shape != (n, m):
+            raise AmorError(f"weights have shape {tuple(np.shape(weights))}; expected ({m},) or ({n}, {m})")
+        if not np.isfinite(w).all() or (w < 0).any() or np.abs(w.sum(axis=1) - 1.0).max() > 1e-4:
+            raise AmorError("weights must be finite, non-negative and sum to 1 in every row")
+        self._tiled[:] = w
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)
