@@ -66,7 +66,7 @@ class NetworkConfig:
 
     actor_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the actor")
     critic_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the critic")
-    init_std: float = _doc(0.2, "initial standard deviation of the Gaussian actions (state-independent)")
+    init_std: float = _doc(0.1, "initial standard deviation of the Gaussian actions (state-independent)")
     obs_clip: float = _doc(10.0, "normalized observations are clipped to [-obs_clip, obs_clip]")
 
 
@@ -83,14 +83,16 @@ class PPOConfig:
     clip_value_loss: bool = _doc(True, "clip the value update around the rollout's values as PPO does")
     value_coef: float = _doc(1.0, "weight of the value loss (mean over the batch and the m outputs)")
     entropy_coef: float = _doc(0.0, "weight of the entropy bonus")
-    learning_rate: float = _doc(1e-3, "Adam learning rate (the start value when lr_schedule=adaptive)")
+    learning_rate: float = _doc(5e-5, "Adam learning rate (the start value when lr_schedule=adaptive)")
     lr_schedule: str = _doc(
         "adaptive", "fixed, or adaptive: scale the rate by 1.5 to keep KL near desired_kl"
     )
-    desired_kl: float = _doc(0.01, "target KL per minibatch for the adaptive learning rate")
+    desired_kl: float = _doc(0.02, "target KL per minibatch for the adaptive learning rate")
     max_grad_norm: float = _doc(1.0, "clip the global gradient norm to this")
     normalize_obs: bool = _doc(True, "running mean/std observation normalization (saved with the policy)")
-    bf16: bool = _doc(False, "bf16 autocast for network forward/backward (fp32 weights, fp32 losses)")
+    precision: str = _doc(
+        "auto", "fp32, bf16 (autocast; fp32 weights and losses), or auto: bf16 if the CPU has it"
+    )
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,7 @@ PRESETS: tuple[str, ...] = ("quick", "paper")
 ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
 ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
+PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
 
 
 def _coerce(value: Any, hint: Any, where: str) -> Any:
@@ -202,6 +205,7 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
         (p.lr_schedule in LR_SCHEDULES, f"[ppo] lr_schedule must be one of {', '.join(LR_SCHEDULES)}"),
         (p.desired_kl > 0, "[ppo] desired_kl must be > 0"),
         (p.max_grad_norm > 0, "[ppo] max_grad_norm must be > 0"),
+        (p.precision in PRECISIONS, f"[ppo] precision must be one of {', '.join(PRECISIONS)}"),
     ]
     for ok, message in checks:
         if not ok:

@@ -58,9 +58,9 @@ def time_update(preset: str, bf16: bool, batch: int, repeats: int) -> float:
     """Median samples/s of one update pass (epochs x minibatches) over a batch of ``batch`` samples."""
     config = load_preset(preset)
     steps = config.ppo.num_steps
-    config = override(config, ppo__bf16=bf16, ppo__lr_schedule="fixed")
+    config = override(config, ppo__precision="bf16" if bf16 else "fp32", ppo__lr_schedule="fixed")
     env = ShapeEnv(max(1, batch // steps))
-    trainer = MOPPOTrainer(env, config.network, config.ppo, seed=0)
+    trainer = MOPPOTrainer(env, config.network, config.ppo, seed=0, bf16=bf16)
     data, _ = trainer.collect_rollout()
     trainer.compute_returns(data)
     trainer.update(data)  # warm-up

@@ -27,8 +27,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
-from amorctl.config import load_config, load_preset, override
+from amorctl.config import load_config, load_preset, merge, override
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.clips import MotionLibrary
@@ -98,6 +99,13 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true", help="continue a previous benchmark run")
     parser.add_argument("--eval-only", action="store_true", help="evaluate the run's newest checkpoint")
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config field of the quick preset (TOML value), e.g. ppo.desired_kl=0.02",
+    )
+    parser.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16"),
         default="auto",
@@ -120,9 +128,15 @@ def main() -> None:
         run__seed=args.seed,
         run__iterations=1_000_000,
         run__checkpoint_every=25,
-        ppo__bf16=args.precision == "bf16" or (args.precision == "auto" and bf16_supported()),
+        ppo__precision=args.precision,
     )
-    print(f"config: quick preset, bf16 autocast {'on' if config.ppo.bf16 else 'off'}")
+    for item in args.set:
+        key, _, value = item.partition("=")
+        section, _, field = key.partition(".")
+        config = merge(config, {section: {field: tomllib.loads(f"v = {value}")["v"]}}, "--set")
+    changed = f", overrides: {' '.join(args.set)}" if args.set else ""
+    bf16 = config.ppo.precision == "bf16" or (config.ppo.precision == "auto" and bf16_supported())
+    print(f"config: quick preset, bf16 autocast {'on' if bf16 else 'off'}{changed}")
     budget = args.minutes * 60.0
     began = time.perf_counter()
     if not args.eval_only:
@@ -134,7 +148,8 @@ def main() -> None:
         )
         trained_s = time.perf_counter() - began
         print(
-            f"trained {result.end_iteration - result.start_iteration} iterations in {trained_s / 60:.1f} min; "
+            f"trained {result.end_iteration - result.start_iteration} iterations "
+            f"in {trained_s / 60:.1f} min; "
             f"{result.last_metrics.get('env_steps', 0):,.0f} env steps total"
         )
 

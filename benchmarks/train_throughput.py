@@ -25,7 +25,7 @@ from amorctl.runner import make_env
 
 def measure(preset: str, bf16: bool, iterations: int, num_envs: int | None) -> dict[str, float]:
     """Median env steps/s and time fractions over ``iterations`` iterations after one warm-up."""
-    config = override(load_preset(preset), ppo__bf16=bf16)
+    config = override(load_preset(preset), ppo__precision="bf16" if bf16 else "fp32")
     if num_envs:
         config = override(config, env__num_envs=num_envs)
     backend = TorchCpuBackend()

@@ -15,3 +15,72 @@ def _fresh_registry(monkeypatch: pytest.MonkeyPatch):
     reset_registry()
     yield
     reset_registry()
+
+
+# --- trained runs shared by the evaluation tests (issue 6): trained once per session, in seconds ---
+TOY_RUN_TOML = {
+    "run": {"iterations": 150, "checkpoint_every": 150, "keep_checkpoints": 1, "tensorboard": False,
+            "threads": 1},
+    "env": {"kind": "toy", "num_envs": 64, "episode_seconds": 0.3},
+    "network": {"actor_hidden": [32, 32], "critic_hidden": [32, 32], "init_std": 0.2},
+    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3},
+}  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def toy_run(tmp_path_factory: pytest.TempPathFactory):
+    """A MOPPO policy trained on the two-objective toy env (``right`` / ``left``): its run directory."""
+    import torch
+
+    from amorctl.config import TrainConfig, merge
+    from amorctl.runner import train_run
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("toy-run") / "run"
+    try:
+        train_run(merge(TrainConfig(), TOY_RUN_TOML, "toy_run fixture"), out)
+    finally:
+        torch.set_num_threads(threads)
+    reset_registry()
+    return out
+
+
+@pytest.fixture(scope="session")
+def tracking_run(tmp_path_factory: pytest.TempPathFactory):
+    """A tiny biped20 tracking run (one iteration) on two synthetic clips ``sway_a`` / ``sway_b``."""
+    import dataclasses
+
+    import torch
+
+    from amorctl.config import TrainConfig, merge
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.motion.dataset import write_dataset
+    from amorctl.registry import get_registry
+    from amorctl.runner import train_run
+
+    root = tmp_path_factory.mktemp("tracking-run")
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
+    clips = tuple(
+        dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
+    )
+    write_dataset(root / "ds.mcap", dataclasses.replace(lib, clips=clips))
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"kind": "tracking", "character": "biped20", "dataset": str(root / "ds.mcap"),
+                    "num_envs": 4, "episode_seconds": 0.4},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+        },
+        "tracking_run fixture",
+    )  # fmt: skip
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        train_run(config, root / "run")
+    finally:
+        torch.set_num_threads(threads)
+    reset_registry()
+    return root / "run"

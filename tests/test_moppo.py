@@ -27,6 +27,7 @@ def tiny_config(**changes: object) -> TrainConfig:
         ppo__num_epochs=4,
         ppo__num_minibatches=2,
         ppo__learning_rate=3e-3,
+        ppo__precision="fp32",
         run__tensorboard=False,
     )
     base.update(changes)
@@ -104,7 +105,7 @@ def test_state_dict_round_trip_continues_bit_exactly() -> None:
 
 @pytest.mark.skipif(not bf16_supported(), reason="no native bf16 on this CPU")
 def test_bf16_autocast_keeps_fp32_weights_and_finite_losses() -> None:
-    trainer = make_trainer(tiny_config(ppo__bf16=True))
+    trainer = make_trainer(tiny_config(ppo__precision="bf16"))
     metrics = trainer.iteration()
     assert all(p.dtype == torch.float32 for p in trainer.actor.parameters())
     assert np.isfinite(metrics["loss/total"]) and np.isfinite(metrics["kl"])

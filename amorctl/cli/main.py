@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from amorctl import __version__
-from amorctl.cli import characters, data, plugins, preprocess, train
+from amorctl.cli import characters, data, evaluate, pareto, plugins, preprocess, train, tune
 from amorctl.errors import AmorError
 
 app = typer.Typer(
@@ -25,6 +25,9 @@ app.command("train")(train.train)
 app.add_typer(characters.app, name="characters")
 app.command("preprocess")(preprocess.preprocess)
 app.add_typer(data.app, name="data")
+app.command("pareto")(pareto.pareto)
+app.command("evaluate")(evaluate.evaluate)
+app.command("tune")(tune.tune)
 
 
 def _version(value: bool) -> None:

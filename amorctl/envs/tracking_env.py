@@ -12,6 +12,7 @@ and action: docs/observations.md; rewards: the objective set (docs/objectives.md
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -45,6 +46,10 @@ class TrackingEnv:
         fall_height_fraction: fall rule: terminated when the root height is below the
             reference's by more than this fraction of the character's standing height.
         nthread: threads of MuJoCo's rollout pool.
+        clips: indices into ``library.clips`` that RSI and clip switches draw from (default:
+            every clip with at least 2 frames); evaluation uses it to restrict to named motions.
+        env_clips: [N] one clip index per env that env always tracks (a clip that ends restarts
+            at its first frame); overrides ``clips``. Pareto sweeps give each env its motion.
         seed: seed of RSI, clip switches and weight sampling (``reset(seed)`` reseeds).
     """
 
@@ -61,6 +66,8 @@ class TrackingEnv:
         fixed_weights: np.ndarray | None = None,
         fall_height_fraction: float = 1.0 / 3.0,
         nthread: int = 2,
+        clips: Sequence[int] | None = None,
+        env_clips: np.ndarray | None = None,
         seed: int | None = 0,
     ) -> None:
         registry = None
@@ -121,6 +128,9 @@ class TrackingEnv:
         self.valid_clips = np.flatnonzero(lib.lengths >= 2)
         if len(self.valid_clips) == 0:
             raise AmorError("motion library has no clip with at least 2 frames")
+        self.all_valid_clips = self.valid_clips
+        self.env_clips: np.ndarray | None = None
+        self.select_clips(clips, env_clips)
 
         d, lat = frame_dim(jn, e), lib.latent_dim
         self.frame_dim = d
@@ -238,6 +248,20 @@ class TrackingEnv:
         }
         return obs, rewards, terminated, truncated, info
 
+    def select_clips(self, clips: Sequence[int] | None = None, env_clips: np.ndarray | None = None) -> None:
+        """Restrict which clips episodes use from the next reset on (see ``clips`` / ``env_clips``
+        in the class docstring); both None restores every clip. AmorError for a bad index."""
+        lib = self.library
+        self.valid_clips = (
+            self.all_valid_clips if clips is None else _check_clips(np.asarray(clips, np.int64).ravel(), lib)
+        )
+        self.env_clips = None
+        if env_clips is not None:
+            per_env = _check_clips(np.asarray(env_clips, dtype=np.int64).ravel(), lib)
+            if per_env.shape != (self.num_envs,):
+                raise AmorError(f"env_clips must have one clip per env ({self.num_envs}), got {per_env.size}")
+            self.env_clips = per_env
+
     def close(self) -> None:
         """Release the simulation's thread pool."""
         self.sim.close()
@@ -246,7 +270,10 @@ class TrackingEnv:
 
     def _start_clips(self, ids: np.ndarray, at_start: bool) -> None:
         """Point envs ``ids`` at a random clip: its first frame, or a random frame but the last."""
-        clips = self.valid_clips[self._rng.integers(len(self.valid_clips), size=len(ids))]
+        if self.env_clips is not None:
+            clips = self.env_clips[ids]
+        else:
+            clips = self.valid_clips[self._rng.integers(len(self.valid_clips), size=len(ids))]
         start, end = self.clip_starts[clips], self.clip_ends[clips]
         offset = 0 if at_start else self._rng.integers(0, end - start - 1)
         self.clip_id[ids] = clips
@@ -312,6 +339,18 @@ def _check_weights(w: np.ndarray, m: int) -> np.ndarray:
     if w.shape != (m,) or not np.isfinite(w).all() or (w < 0).any() or abs(w.sum() - 1.0) > 1e-4:
         raise AmorError(f"fixed weights must be {m} non-negative numbers summing to 1, got {w.tolist()}")
     return w.astype(np.float32)
+
+
+def _check_clips(clips: np.ndarray, lib: MotionLibrary) -> np.ndarray:
+    """Clip indices [k] that exist and have at least 2 frames; AmorError naming the bad one."""
+    if clips.size == 0:
+        raise AmorError("no clips to track: the clip selection is empty")
+    for c in np.unique(clips):
+        if not 0 <= c < len(lib.clips):
+            raise AmorError(f"clip index {int(c)} out of range (the library has {len(lib.clips)} clips)")
+        if lib.lengths[c] < 2:
+            raise AmorError(f"clip {lib.clips[c].name!r} has fewer than 2 frames; it cannot be tracked")
+    return clips
 
 
 def _check_library(ch: CharacterSpec, lib: MotionLibrary) -> None:

@@ -251,3 +251,22 @@ def _maybe_json(v: str) -> Any:
         return json.loads(v)
     except (json.JSONDecodeError, TypeError):
         return v
+
+
+def clip_of_frame(library: MotionLibrary, index: np.ndarray) -> np.ndarray:
+    """Clip number [N] of each flat frame index [N]."""
+    return np.searchsorted(library.starts, np.asarray(index), side="right") - 1
+
+
+def frame_windows(library: MotionLibrary, index: np.ndarray, window: int) -> np.ndarray:
+    """Frames m_{t-W..t+W} around flat frame indices [N] -> [N, 2W+1, D], no copy of the library.
+
+    Windows stay inside their clip; at clip edges the first or last frame repeats (the VAE's
+    padding rule).
+    """
+    index = np.asarray(index, dtype=np.int64)
+    k = clip_of_frame(library, index)
+    start, end = library.starts[k], library.starts[k] + library.lengths[k] - 1
+    offsets = np.arange(-window, window + 1)
+    rows = np.clip(index[:, None] + offsets[None], start[:, None], end[:, None])
+    return library.frames[rows]

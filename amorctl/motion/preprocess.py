@@ -58,15 +58,18 @@ class PreprocessReport:
     timings: dict[str, float] = field(default_factory=dict)
 
 
-def gather_inputs(files: Sequence[Path], builtin: str | None) -> list[tuple[str | None, Path, str]]:
-    """(clip name or None for the importer's default, path, licence) of every input, in order."""
-    inputs: list[tuple[str | None, Path, str]] = []
+def gather_inputs(
+    files: Sequence[Path], builtin: str | None, fmt: str | None = None
+) -> list[tuple[str | None, Path, str, str | None]]:
+    """(clip name or None for the importer's default, path, licence, format or None to infer) of
+    every input, in order; ``fmt`` applies to ``files`` only (built-in clips know their format)."""
+    inputs: list[tuple[str | None, Path, str, str | None]] = []
     if builtin:
-        inputs += [(name, path, DEEPMIMIC_LICENCE) for name, path in builtin_clips(builtin)]
+        inputs += [(name, path, DEEPMIMIC_LICENCE, "deepmimic") for name, path in builtin_clips(builtin)]
     for f in files:
         path = Path(f)
         lic = DEEPMIMIC_LICENCE if source_label(path).startswith("pybullet_data/") else USER_LICENCE
-        inputs.append((None, path, lic))
+        inputs.append((None, path, lic, fmt))
     if not inputs:
         raise AmorError("no motion given: pass FILES and/or --builtin deepmimic")
     return inputs
@@ -123,11 +126,11 @@ def preprocess(
     t0 = time.perf_counter()
     spec = get_registry().character(character)
     kin = character_kinematics(spec)
-    inputs = gather_inputs(files, builtin)
+    inputs = gather_inputs(files, builtin, fmt)
     motions: list[CharacterMotion] = []
     per_clip: list[dict[str, np.ndarray]] = []
-    for i, (name, path, licence) in enumerate(inputs):
-        char, arrays = process_clip(path, name, licence, kin, fmt, joint_map)
+    for i, (name, path, licence, clip_fmt) in enumerate(inputs):
+        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map)
         if any(m.name == char.name for m in motions):
             raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
         motions.append(char)

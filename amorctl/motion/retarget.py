@@ -5,7 +5,12 @@ Two methods, chosen per character by :data:`RETARGETERS` (default: IK):
 - ``direct`` (``humanoid36``): the character is the DeepMimic humanoid, so every ball joint's
   local rotation (already in MuJoCo axes, R_mj = C R_dm Cᵀ) becomes its hinge triplet by an
   intrinsic Euler decomposition along the triplet's axes; 1-DoF joints take the twist about their
-  axis; joints the source lacks (the toes) stay at 0.
+  axis; joints the source lacks (the toes) stay at 0. Angle tracks are unwrapped in time (no 2π
+  jumps) and moved by whole turns so their mean lies in the joint range. They are not clipped:
+  past 90° about a triplet's middle axis (gimbal lock) the outer angles turn by π, which a hinge
+  limited to ±π cannot always follow, and clipping would change the pose (a backflip's key points
+  moved by up to 1.7 m). The pose stays exact; ``stats["frames_outside_range"]`` counts, per
+  joint, the frames whose angle lies outside the joint's range.
 - ``ik`` (any other character): inverse kinematics on key points, see :mod:`amorctl.motion.ik`.
 
 Both finish with :func:`lift_to_floor`: in any frame where the character's collision geometry
@@ -59,6 +64,8 @@ def retarget_direct(motion: SourceMotion, kin: CharacterKinematics) -> Character
         else:
             raise AmorError(f"character {kin.spec.name!r} has no joint(s) for source joint {source_joint!r}")
     joint_pos = _shift_into_range(joint_pos, kin.joint_ranges)
+    lo, hi = kin.joint_ranges[:, 0], kin.joint_ranges[:, 1]
+    outside = (joint_pos < lo - 1e-9) | (joint_pos > hi + 1e-9)
     out = CharacterMotion(
         name=motion.name,
         source=motion.source,
@@ -70,7 +77,13 @@ def retarget_direct(motion: SourceMotion, kin: CharacterKinematics) -> Character
         root_quat=motion.local_quat[:, 0].copy(),
         joint_pos=joint_pos,
         source_fps=motion.source_fps,
-        stats={"method": "direct", "unmapped_joints": [n for i, n in enumerate(names) if i not in done]},
+        stats={
+            "method": "direct",
+            "unmapped_joints": [n for i, n in enumerate(names) if i not in done],
+            "frames_outside_range": {
+                names[j]: int(outside[:, j].sum()) for j in np.flatnonzero(outside.any(axis=0))
+            },
+        },
     )
     return finish(out, motion, kin, lift=True)
 

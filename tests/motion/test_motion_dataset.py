@@ -142,3 +142,15 @@ def test_cli_preprocess_without_vae(tmp_path, clip_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["vae"] is None and report["clips"][0]["name"] == "run"
     assert load_dataset(out).latent_dim == 0
+
+
+def test_frame_windows_stay_inside_clips():
+    from amorctl.motion.dataset import clip_of_frame, frame_windows
+
+    lib = _library(np.random.default_rng(1))  # clips of 7 and 4 frames
+    np.testing.assert_array_equal(clip_of_frame(lib, np.array([0, 6, 7, 10])), [0, 0, 1, 1])
+    w = frame_windows(lib, np.array([0, 7, 10]), window=2)
+    assert w.shape == (3, 5, lib.frame_dim)
+    np.testing.assert_array_equal(w[0], lib.frames[[0, 0, 0, 1, 2]])
+    np.testing.assert_array_equal(w[1], lib.frames[[7, 7, 7, 8, 9]])
+    np.testing.assert_array_equal(w[2], lib.frames[[8, 9, 10, 10, 10]])

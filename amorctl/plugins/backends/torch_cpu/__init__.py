@@ -55,9 +55,10 @@ class TorchCpuBackend:
 
         if config.run.threads > 0:
             torch.set_num_threads(config.run.threads)
-        if config.ppo.bf16 and not bf16_supported():
-            raise AmorError("[ppo] bf16 = true, but this CPU has no native bf16 support (AVX512-BF16 or AMX)")
-        return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed)
+        if config.ppo.precision == "bf16" and not bf16_supported():
+            raise AmorError('[ppo] precision = "bf16", but this CPU has no native bf16 (AVX512-BF16 or AMX)')
+        bf16 = config.ppo.precision == "bf16" or (config.ppo.precision == "auto" and bf16_supported())
+        return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed, bf16=bf16)
 
     def load_policy(self, trainer_state: State, config: TrainConfig) -> Any:
         """A :class:`~amorctl.plugins.backends.torch_cpu.policy.TorchPolicy` from a checkpoint's

@@ -71,9 +71,12 @@ class Batch:
 class MOPPOTrainer:
     """MOPPO for any :class:`~amorctl.vecenv.VectorEnv`; implements :class:`amorctl.trainer.Trainer`."""
 
-    def __init__(self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int) -> None:
+    def __init__(
+        self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int, bf16: bool = False
+    ) -> None:
         self.env = env
         self.cfg = ppo
+        self.bf16 = bf16  # autocast the networks to bf16 (the backend resolves precision = "auto")
         self.names = tuple(env.reward_space.names)
         self.num_objectives = len(self.names)
         self.iteration_count = 0
@@ -113,7 +116,7 @@ class MOPPOTrainer:
 
     # ------------------------------------------------------------------ networks
     def _autocast(self) -> contextlib.AbstractContextManager[Any]:
-        if self.cfg.bf16:
+        if self.bf16:
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()
 

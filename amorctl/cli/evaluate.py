@@ -1,0 +1,228 @@
+"""``amorctl evaluate``: tracking error, survival and returns of a run under chosen weights (Table 2),
+weight sweeps of one objective (Fig. 6), and videos."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, print_json
+from amorctl.cli.pareto import MotionOpt, rollout_progress
+from amorctl.errors import AmorError
+from amorctl.evaluation import (
+    DEFAULT_SWEEP_LEVELS,
+    EvalResult,
+    check_objective,
+    evaluate_setting,
+    make_eval_env,
+    open_run,
+    weight_sweep,
+)
+from amorctl.rollout import WeightsSource, rollout, tracking_env
+from amorctl.schedule import Schedule, load_schedule
+from amorctl.weights import parse_weights
+
+ROWS = (
+    ("joint MAE (deg)", "joint_mae_deg", ".2f"),
+    ("  up", "joint_mae_deg/up", ".2f"),
+    ("  lo", "joint_mae_deg/lo", ".2f"),
+    ("  feet", "joint_mae_deg/feet", ".2f"),
+    ("MPJPE end effectors (mm)", "mpjpe_mm", ".1f"),
+    ("survival rate", "survival_rate", ".1%"),
+    ("episode length (s)", "episode_length_s", ".2f"),
+)
+
+
+def _fmt(value: Any, spec: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return format(value, spec)
+
+
+def _settings(
+    names: tuple[str, ...], weights: str | None, schedule: Schedule | None, compare: bool
+) -> list[tuple[str, WeightsSource]]:
+    uniform = np.full(len(names), 1.0 / len(names))
+    given: list[tuple[str, WeightsSource]] = []
+    if weights is not None:
+        given.append(("weights", parse_weights(weights, names)))
+    if schedule is not None:
+        given.append(("schedule", schedule))
+    if compare:
+        return [("uniform", uniform), *given]
+    if len(given) > 1:
+        raise AmorError("give --weights or --schedule, not both (or add --compare to see them side by side)")
+    return given or [("uniform", uniform)]
+
+
+def _parse_levels(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise AmorError(f"--levels: {text!r} is not a comma-separated list of numbers") from None
+
+
+def _table(results: list[EvalResult], names: tuple[str, ...]) -> Table:
+    table = Table(title="Tracking performance (returns unscaled)")
+    table.add_column("metric")
+    for r in results:
+        table.add_column(f"{r.label}\n[dim]{r.weights}[/dim]", justify="right")
+    for label, key, spec in ROWS:
+        if all(r.metrics.get(key) is None for r in results):
+            continue
+        table.add_row(label, *(_fmt(r.metrics.get(key), spec) for r in results))
+    for name in names:
+        table.add_row(
+            f"return {name}",
+            *(
+                f"{_fmt(r.metrics[f'return/{name}'], '.2f')} ± {_fmt(r.metrics[f'return_std/{name}'], '.2f')}"
+                for r in results
+            ),
+        )
+    return table
+
+
+def _video(
+    path: Path, policy: Any, config: Any, source: WeightsSource, motions: list[str] | None, seconds: float,
+    seed: int,
+) -> dict[str, Any]:  # fmt: skip
+    """Roll out one env for one episode (at most ``seconds``) and render it with ghost and weights."""
+    from amorctl.render import reference_qpos, render_video
+
+    if config.env.kind != "tracking":
+        raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
+    env, _ = make_eval_env(config, 1, motions=motions[:1] if motions else None, seed=seed)
+    try:
+        inner = tracking_env(env)
+        steps = max(1, round(seconds / inner.dt))
+        ro = rollout(policy, env, source, episodes=1, seed=seed, max_steps=steps, record_qpos=True)
+        ref = reference_qpos(inner, ro.frame_index[:, 0])
+        info = render_video(
+            path, inner.character.name, ro.qpos[:, 0], ref_qpos=ref, weights=ro.weights[:, 0],
+            objective_names=ro.objective_names, fps=1.0 / inner.dt,
+        )  # fmt: skip
+    finally:
+        env.close()  # type: ignore[attr-defined]
+    return {
+        "path": str(info.path), "frames": info.frames, "width": info.width, "height": info.height,
+        "fps": info.fps, "gl_backend": info.gl_backend,
+    }  # fmt: skip
+
+
+def evaluate(
+    run: Annotated[Path, typer.Argument(help="Run directory written by `amorctl train`.")],
+    weights: Annotated[
+        str | None,
+        typer.Option("--weights", "-w", help="Weights, e.g. up=1,smooth=0.5 (normalized; others 0)."),
+    ] = None,
+    schedule: Annotated[
+        Path | None, typer.Option("--schedule", help="Weight schedule file w(t) (TOML, docs/schedules.md).")
+    ] = None,
+    motion: MotionOpt = None,
+    episodes: Annotated[int, typer.Option("--episodes", "-e", help="Episodes per setting (and motion).")] = 8,
+    compare: Annotated[
+        bool, typer.Option("--compare", help="Side by side: uniform, --weights, --schedule (Table 2).")
+    ] = False,
+    sweep: Annotated[
+        str | None,
+        typer.Option("--sweep", help="Sweep this objective's weight (others share the rest): Fig. 6 plot."),
+    ] = None,
+    levels: Annotated[
+        str, typer.Option("--levels", help="Sweep levels of the weight, comma-separated (at least 3).")
+    ] = ",".join(str(v) for v in DEFAULT_SWEEP_LEVELS),
+    video: Annotated[
+        Path | None,
+        typer.Option("--video", help="Render an MP4: the character, the reference ghost, the weights."),
+    ] = None,
+    video_seconds: Annotated[float, typer.Option("--video-seconds", help="Length of the video.")] = 10.0,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Directory for the sweep figure (default RUN/evaluate).")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the episodes' starts.")] = 0,
+    json_out: JsonFlag = False,
+) -> None:
+    """Joint MAE, MPJPE, survival, episode length and returns per weight setting."""
+    if episodes < 1:
+        raise AmorError(f"--episodes must be >= 1, got {episodes}")
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise AmorError(f"--video {video}: the file must end in .mp4")
+    policy, config = open_run(run)
+    names = tuple(policy.objectives)
+    sched = load_schedule(schedule, names) if schedule is not None else None
+    settings = _settings(names, weights, sched, compare)
+    sweep_levels = _parse_levels(levels) if sweep is not None else []
+    if sweep is not None:
+        check_objective(sweep, names)
+    show = not json_out and console.is_terminal
+
+    results: list[EvalResult] = []
+    for label, source in settings:
+        with rollout_progress(show, f"evaluate {label}") as on_step:
+            results.append(
+                evaluate_setting(
+                    policy,
+                    config,
+                    source,
+                    label=label,
+                    motions=motion,
+                    episodes=episodes,
+                    seed=seed,
+                    on_step=on_step,
+                )
+            )
+    sweep_doc: dict[str, Any] | None = None
+    if sweep is not None:
+        from amorctl.plots import sweep_figure
+
+        with rollout_progress(show, f"sweep {sweep}") as on_step:
+            ws = weight_sweep(
+                policy, config, sweep, levels=sweep_levels, motions=motion, episodes=episodes, seed=seed,
+                on_step=on_step,
+            )  # fmt: skip
+        figure = (out if out is not None else run / "evaluate") / f"sweep-{sweep}.png"
+        sweep_figure(ws, figure)
+        sweep_doc = {**ws.to_dict(), "figure": str(figure)}
+    video_doc = None
+    if video is not None:
+        video_doc = _video(video, policy, config, settings[-1][1], motion, video_seconds, seed)
+
+    doc = {
+        "run": str(run),
+        "objectives": list(names),
+        "episodes": episodes,
+        "motions": list(motion or []),
+        "settings": [
+            {"label": r.label, "weights": r.weights, "episodes": r.episodes, "metrics": r.metrics,
+             "per_motion": r.per_motion}
+            for r in results
+        ],
+        "sweep": sweep_doc,
+        "video": video_doc,
+    }  # fmt: skip
+    if json_out:
+        print_json(doc)
+        return
+    console.print(_table(results, names))
+    if sweep_doc is not None:
+        means = ", ".join(
+            f"{lv:.2f}: {_fmt(mu, '.2f')}"
+            for lv, mu in zip(sweep_doc["levels"], sweep_doc["mean"], strict=True)
+        )
+        console.print(
+            f"sweep of {sweep}: mean return per weight level {means}\n"
+            f"Spearman rank correlation (weight vs return): ρ = {_fmt(sweep_doc['spearman_rho'], '.3f')} "
+            f"(p = {_fmt(sweep_doc['spearman_p'], '.2g')}) · figure: {sweep_doc['figure']}",
+            highlight=False,
+            soft_wrap=True,
+        )
+    if video_doc is not None:
+        console.print(
+            f"video: {video_doc['path']} ({video_doc['frames']} frames, MUJOCO_GL={video_doc['gl_backend']})",
+            highlight=False,
+        )

@@ -1,0 +1,192 @@
+"""``amorctl tune``: run a trained policy with weights chosen now, a weight schedule, or live."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, err_console, print_json
+from amorctl.errors import AmorError
+
+
+def _check_outputs(paths: list[Path | None]) -> None:
+    """Fail before any work if an output's directory is missing or two outputs are the same file."""
+    given = [p for p in paths if p is not None]
+    if len({p.resolve() for p in given}) != len(given):
+        raise AmorError("--out, --plot and --video must name different files")
+    for p in given:
+        if p.exists() and p.is_dir():
+            raise AmorError(f"{p}: is a directory")
+        if not p.parent.exists():
+            raise AmorError(f"{p}: directory {p.parent} does not exist")
+
+
+def _segments(rollout: Any, keyframe_times: np.ndarray) -> list[dict[str, Any]]:
+    """Mean per-step rewards and action rate between consecutive keyframe times."""
+    edges = [0.0, *[float(t) for t in keyframe_times if 0.0 < t < rollout.times[-1] + rollout.dt]]
+    edges.append(float(rollout.times[-1] + rollout.dt))
+    rate = rollout.action_rate()
+    out = []
+    for t0, t1 in itertools.pairwise(edges):
+        sel = (rollout.times >= t0) & (rollout.times < t1)
+        if not sel.any():
+            continue
+        out.append(
+            {
+                "t0": t0,
+                "t1": t1,
+                "steps": int(sel.sum()),
+                "mean_reward": dict(
+                    zip(rollout.objective_names, rollout.rewards[sel].mean(axis=0).tolist(), strict=True)
+                ),
+                "mean_action_rate": float(rate[sel].mean()),
+            }
+        )
+    return out
+
+
+def tune(
+    run: Annotated[Path, typer.Argument(help="Run directory (config.toml + checkpoints/).")],
+    motion: Annotated[
+        str | None, typer.Option("--motion", "-m", help="Clip to track (default: the dataset's first).")
+    ] = None,
+    weights: Annotated[
+        str | None, typer.Option("--weights", "-w", help="Constant weights, e.g. up=1,smooth=2 (normalized).")
+    ] = None,
+    schedule: Annotated[
+        Path | None, typer.Option("--schedule", "-s", help="Weight schedule file (docs/schedules.md).")
+    ] = None,
+    seconds: Annotated[
+        float | None, typer.Option("--seconds", help="Rollout length (default: the motion's duration).")
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Write the rollout log (MCAP).")] = None,
+    plot: Annotated[
+        Path | None, typer.Option("--plot", help="Write w(t) and rewards over time (PNG).")
+    ] = None,
+    video: Annotated[Path | None, typer.Option("--video", help="Render the rollout (MP4).")] = None,
+    stop_on_fall: Annotated[
+        bool,
+        typer.Option(
+            "--stop-on-fall/--no-stop-on-fall", help="End at a fall, or restart the motion and go on."
+        ),
+    ] = True,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the env.")] = 0,
+    live: Annotated[bool, typer.Option("--live", help="Serve the live tuning page instead.")] = False,
+    host: Annotated[str, typer.Option("--host", help="Address of the live page (local only by default).")] = (
+        "127.0.0.1"
+    ),
+    port: Annotated[int, typer.Option("--port", help="Port of the live page.")] = 8080,
+    save_to: Annotated[
+        Path, typer.Option("--save-to", help="Live page: where 'save schedule' writes the keyframes.")
+    ] = Path("tune-schedule.toml"),
+    json_: JsonFlag = False,
+) -> None:
+    """Run the policy with weights chosen after training: constant (--weights), over time
+    (--schedule), or live in the browser (--live). Prints per-objective returns."""
+    from amorctl.schedule import load_schedule
+    from amorctl.tune import TuneEnv, plot_rollout, run_tune, write_rollout_mcap
+    from amorctl.weights import parse_weights
+
+    if live:
+        if schedule is not None or out is not None or plot is not None or video is not None:
+            raise AmorError(
+                "--live takes no --schedule, --out, --plot or --video (save keyframes on the page)"
+            )
+        if not 0 < port < 65536:
+            raise AmorError(f"--port must be in 1..65535, got {port}")
+    elif (weights is None) == (schedule is None):
+        raise AmorError("give exactly one of --weights or --schedule (or --live)")
+    _check_outputs([out, plot, video])
+    render_video = None
+    if video is not None:
+        try:
+            from amorctl.render import render_video
+        except ImportError:
+            raise AmorError("--video needs amorctl.render, which this installation lacks") from None
+
+    tenv = TuneEnv(run, motion, seed=seed)
+    if video is not None and not tenv.tracking:
+        tenv.close()
+        raise AmorError(f"--video needs a character; run {run} has env kind {tenv.config.env.kind!r}")
+    try:
+        w0 = parse_weights(weights, tenv.names) if weights is not None else None
+        if live:
+            from amorctl.live import LiveSession, serve_live
+
+            session = LiveSession(tenv, w0, save_to=save_to)
+            serve_live(
+                session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
+            )
+            return
+        sched = None
+        if schedule is not None:
+            sched = load_schedule(schedule, tenv.names, tenv.motions or None)
+        rollout = run_tune(tenv, sched if sched is not None else w0, seconds, stop_on_fall=stop_on_fall)
+    finally:
+        if not live:
+            tenv.close()
+
+    if out is not None:
+        write_rollout_mcap(rollout, out, {"run": str(run), "seed": str(seed)})
+    if plot is not None:
+        plot_rollout(rollout, plot, title=f"{run.name} — {rollout.motion or 'rollout'}")
+    if video is not None and render_video is not None:
+        render_video(
+            video,
+            tenv.config.env.character,
+            rollout.qpos,
+            ref_qpos=rollout.ref_qpos,
+            weights=rollout.weights,
+            objective_names=rollout.objective_names,
+            fps=1.0 / rollout.dt,
+        )
+
+    kf_times = np.zeros(0)
+    if sched is not None:
+        kf_times = sched.track_for(tenv.motion).times
+    fell = np.flatnonzero(rollout.terminated)
+    result = {
+        "run": str(run),
+        "motion": rollout.motion,
+        "objectives": list(rollout.objective_names),
+        "steps": len(rollout.times),
+        "seconds": float(len(rollout.times) * rollout.dt),
+        "fell_at": float(rollout.times[fell[0]] + rollout.dt) if len(fell) else None,
+        "returns": dict(zip(rollout.objective_names, rollout.returns.tolist(), strict=True)),
+        "mean_action_rate": float(rollout.action_rate().mean()),
+        "segments": _segments(rollout, kf_times),
+        "files": {k: str(v) for k, v in (("out", out), ("plot", plot), ("video", video)) if v is not None},
+    }
+    if json_:
+        print_json(result)
+        return
+    _print_table(result)
+
+
+def _print_table(result: dict[str, Any]) -> None:
+    names = result["objectives"]
+    head = f"{result['run']}  motion={result['motion']}  {result['steps']} steps ({result['seconds']:.2f} s)"
+    if result["fell_at"] is not None:
+        head += f"  fell at {result['fell_at']:.2f} s"
+    console.print(head)
+    table = Table("", *names, title="per-objective return (sum of rewards)")
+    table.add_row("return", *(f"{result['returns'][n]:.3f}" for n in names))
+    console.print(table)
+    if len(result["segments"]) > 1:
+        seg = Table("from s", "to s", *names, "action rate", title="mean reward per step between keyframes")
+        for s in result["segments"]:
+            seg.add_row(
+                f"{s['t0']:.2f}",
+                f"{s['t1']:.2f}",
+                *(f"{s['mean_reward'][n]:.3f}" for n in names),
+                f"{s['mean_action_rate']:.4g}",
+            )
+        console.print(seg)
+    for key, value in result["files"].items():
+        console.print(f"{key}: {value}")

@@ -1,0 +1,180 @@
+"""JSON Schemas (draft 2020-12) of ``amorctl pareto --json`` and ``amorctl evaluate --json``.
+
+The same schemas are printed in docs/pareto.md and docs/evaluate.md (a test checks they agree)
+and the test suite validates real command output against them with ``jsonschema``.
+Numbers that can be undefined (a NaN mean, a tracking metric of an env without a reference) are
+``null``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_NUM_OR_NULL: dict[str, Any] = {"type": ["number", "null"]}
+_MATRIX: dict[str, Any] = {"type": "array", "items": {"type": "array", "items": _NUM_OR_NULL}}
+_VECTOR: dict[str, Any] = {"type": "array", "items": _NUM_OR_NULL}
+_BOOLS: dict[str, Any] = {"type": "array", "items": {"type": "boolean"}}
+
+PARETO_JSON_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "$id": "https://amorctl.invalid/schemas/pareto.json",
+    "title": "amorctl pareto --json (also pareto.json)",
+    "type": "object",
+    "required": [
+        "run", "objectives", "weights", "sampling", "samples", "episodes", "episode_seconds",
+        "reference_point_rule", "motions", "timing", "files",
+    ],
+    "properties": {
+        "run": {"type": "string", "description": "the run directory"},
+        "objectives": {"type": "array", "items": {"type": "string"}, "minItems": 1},
+        "weights": {**_MATRIX, "description": "[K][m] the sampled weight vectors, rows on the simplex"},
+        "sampling": {"type": "string", "description": "dirichlet(1) or simplex grid (N divisions)"},
+        "samples": {"type": "integer", "minimum": 1, "description": "K"},
+        "episodes": {"type": "integer", "minimum": 1, "description": "E episodes per weight vector"},
+        "episode_seconds": {"type": "number", "description": "the episodes' time limit"},
+        "reference_point_rule": {"type": "string"},
+        "motions": {
+            "type": "array",
+            "minItems": 1,
+            "items": {
+                "type": "object",
+                "required": [
+                    "motion", "points", "points_std", "survival", "equal_weights_point", "non_dominated",
+                    "pairwise_non_dominated", "non_dominated_fraction", "hypervolume", "expected_utility",
+                    "sparsity",
+                ],
+                "properties": {
+                    "motion": {"type": "string", "description": "clip name, or 'all'"},
+                    "points": {**_MATRIX, "description": "[K][m] mean unscaled returns over E episodes"},
+                    "points_std": {**_MATRIX, "description": "[K][m] their standard deviation"},
+                    "survival": {**_VECTOR, "description": "[K] fraction of episodes reaching the limit"},
+                    "equal_weights_point": {**_VECTOR, "description": "[m] returns under w = 1/m"},
+                    "non_dominated": {**_BOOLS, "description": "[K] non-dominated in all m objectives"},
+                    "pairwise_non_dominated": {
+                        "type": "object",
+                        "description": "'a/b' -> [K] non-dominated in objectives a and b alone",
+                        "additionalProperties": _BOOLS,
+                    },
+                    "non_dominated_fraction": {"type": "number", "minimum": 0, "maximum": 1},
+                    "hypervolume": {
+                        "type": "object",
+                        "required": [
+                            "value", "method", "ci_low", "ci_high", "confidence", "n_samples", "n_points",
+                            "reference_point",
+                        ],
+                        "properties": {
+                            "value": {"type": "number", "minimum": 0},
+                            "method": {"enum": ["exact", "monte_carlo"]},
+                            "ci_low": {"type": "number"},
+                            "ci_high": {"type": "number"},
+                            "confidence": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
+                            "n_samples": {"type": "integer", "minimum": 0},
+                            "n_points": {"type": "integer", "minimum": 0},
+                            "reference_point": {"type": "array", "items": {"type": "number"}},
+                        },
+                    },
+                    "expected_utility": {"type": "number"},
+                    "sparsity": {"type": "number", "minimum": 0},
+                },
+            },
+        },
+        "timing": {
+            "type": "object",
+            "required": ["num_envs", "env_steps", "seconds"],
+            "properties": {
+                "num_envs": {"type": "integer", "minimum": 1},
+                "env_steps": {"type": "integer", "minimum": 0},
+                "seconds": {"type": "number", "minimum": 0},
+            },
+        },
+        "files": {
+            "type": "object",
+            "description": "json, csv, png, svg -> path",
+            "additionalProperties": {"type": "string"},
+        },
+    },
+}  # fmt: skip
+
+_METRICS: dict[str, Any] = {
+    "type": "object",
+    "required": [
+        "episodes", "survival_rate", "episode_length_steps", "episode_length_s", "joint_mae_deg", "mpjpe_mm",
+    ],
+    "properties": {
+        "episodes": {"type": "number", "minimum": 1},
+        "survival_rate": {"type": "number", "minimum": 0, "maximum": 1},
+        "episode_length_steps": {"type": "number", "minimum": 0},
+        "episode_length_s": {"type": "number", "minimum": 0},
+        "joint_mae_deg": {**_NUM_OR_NULL, "description": "mean |q - q_ref| over joints and steps, degrees"},
+        "mpjpe_mm": {**_NUM_OR_NULL, "description": "mean end-effector position error, mm"},
+    },
+    "description": "plus joint_mae_deg/<up|lo|feet>, return/<objective>, return_std/<objective>",
+    "additionalProperties": _NUM_OR_NULL,
+}  # fmt: skip
+
+EVALUATE_JSON_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "$id": "https://amorctl.invalid/schemas/evaluate.json",
+    "title": "amorctl evaluate --json",
+    "type": "object",
+    "required": ["run", "objectives", "episodes", "motions", "settings", "sweep", "video"],
+    "properties": {
+        "run": {"type": "string"},
+        "objectives": {"type": "array", "items": {"type": "string"}, "minItems": 1},
+        "episodes": {"type": "integer", "minimum": 1},
+        "motions": {"type": "array", "items": {"type": "string"}},
+        "settings": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "required": ["label", "weights", "episodes", "metrics", "per_motion"],
+                "properties": {
+                    "label": {"type": "string", "description": "uniform | weights | schedule"},
+                    "weights": {"type": "string"},
+                    "episodes": {"type": "integer", "minimum": 1},
+                    "metrics": _METRICS,
+                    "per_motion": {"type": "object", "additionalProperties": _METRICS},
+                },
+            },
+        },
+        "sweep": {
+            "oneOf": [
+                {"type": "null"},
+                {
+                    "type": "object",
+                    "required": [
+                        "objective", "levels", "returns", "mean", "survival", "spearman_rho", "spearman_p",
+                        "figure",
+                    ],
+                    "properties": {
+                        "objective": {"type": "string"},
+                        "levels": {**_VECTOR, "minItems": 3},
+                        "returns": {**_MATRIX, "description": "[L][E] unweighted cumulative reward"},
+                        "mean": _VECTOR,
+                        "survival": _VECTOR,
+                        "spearman_rho": _NUM_OR_NULL,
+                        "spearman_p": _NUM_OR_NULL,
+                        "figure": {"type": "string"},
+                    },
+                },
+            ]
+        },
+        "video": {
+            "oneOf": [
+                {"type": "null"},
+                {
+                    "type": "object",
+                    "required": ["path", "frames", "width", "height", "fps", "gl_backend"],
+                    "properties": {
+                        "path": {"type": "string"},
+                        "frames": {"type": "integer", "minimum": 1},
+                        "width": {"type": "integer"},
+                        "height": {"type": "integer"},
+                        "fps": {"type": "number"},
+                        "gl_backend": {"type": "string"},
+                    },
+                },
+            ]
+        },
+    },
+}  # fmt: skip

@@ -1,0 +1,490 @@
+"""`amorctl tune`: schedules on trained policies, the MCAP rollout log, the plot, bad input, the
+live session (without a browser) and the live page in headless Chromium (Playwright)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from amorctl.cli.main import main
+from amorctl.config import TrainConfig, override
+from amorctl.errors import AmorError
+from amorctl.schedule import dump_schedule, load_schedule
+from amorctl.tune import (
+    TOPIC_ACTIONS,
+    TOPIC_JOINTS,
+    TOPIC_REF_JOINTS,
+    TOPIC_REWARDS,
+    TOPIC_SCENE,
+    TOPIC_TF,
+    TOPIC_WEIGHTS,
+    TuneEnv,
+    plot_rollout,
+    read_rollout_mcap,
+    run_tune,
+    write_rollout_mcap,
+)
+
+torch.set_num_threads(1)
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+TRACKING7 = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
+
+
+# ---------------------------------------------------------------------------- trained runs
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A MOPPO policy on the toy env whose action follows w: ~+1 for w=(1,0), ~-1 for w=(0,1)."""
+    from amorctl.runner import train_run
+
+    out = tmp_path_factory.mktemp("toy") / "run"
+    config = override(
+        TrainConfig(),
+        run__iterations=30,
+        run__checkpoint_every=30,
+        run__tensorboard=False,
+        run__threads=1,
+        env__kind="toy",
+        env__num_envs=64,
+        env__episode_seconds=0.4,
+        network__actor_hidden=[32, 32],
+        network__critic_hidden=[32, 32],
+        network__init_std=1.0,
+        ppo__num_steps=16,
+        ppo__num_epochs=4,
+        ppo__num_minibatches=2,
+        ppo__learning_rate=3e-3,
+    )
+    train_run(config, out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def tracking_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny biped20 run on two synthetic 1 s clips (sway0, sway1): two iterations, seconds."""
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.motion.dataset import write_dataset
+    from amorctl.registry import get_registry
+    from amorctl.runner import train_run
+
+    root = tmp_path_factory.mktemp("tracking")
+    dataset = root / "sway.mcap"
+    write_dataset(dataset, synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0))
+    config = override(
+        TrainConfig(),
+        run__iterations=2,
+        run__checkpoint_every=2,
+        run__tensorboard=False,
+        run__threads=1,
+        env__kind="tracking",
+        env__character="biped20",
+        env__dataset=str(dataset),
+        env__num_envs=8,
+        env__episode_seconds=1.0,
+        network__actor_hidden=[32],
+        network__critic_hidden=[32],
+        ppo__num_steps=8,
+        ppo__num_epochs=1,
+        ppo__num_minibatches=1,
+    )
+    train_run(config, root / "run")
+    return root / "run"
+
+
+def run_cli(capsys: pytest.CaptureFixture, *args: str) -> tuple[int, str, str]:
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# ---------------------------------------------------------------------------- schedules on policies
+
+
+def test_a_schedule_switch_changes_the_policys_behaviour_after_the_switch(
+    toy_run: Path, tmp_path: Path
+) -> None:
+    # The toy analogue of "raise smooth half-way": raise `right` half-way. Before the switch the
+    # policy acts left (a ~ -1 + s), after it right (a ~ +1 + s), and the favoured reward follows.
+    sched = tmp_path / "switch.toml"
+    sched.write_text(
+        'interpolation = "step"\n'
+        "[[keyframe]]\nt = 0\nweights = { right = 0.1, left = 0.9 }\n"
+        "[[keyframe]]\nt = 0.2\nweights = { right = 0.9, left = 0.1 }\n"
+    )
+    tenv = TuneEnv(toy_run)
+    rollout = run_tune(tenv, load_schedule(sched, tenv.names), seconds=0.4, stop_on_fall=False)
+    assert len(rollout.times) == 20 and not rollout.terminated.any()
+    before, after = rollout.times < 0.2 - 1e-9, rollout.times >= 0.2 - 1e-9
+    np.testing.assert_allclose(rollout.weights[before], [[0.1, 0.9]] * 10, atol=1e-6)
+    np.testing.assert_allclose(rollout.weights[after], [[0.9, 0.1]] * 10, atol=1e-6)
+    a = rollout.actions[:, 0]
+    assert a[before].mean() < -0.5 and a[after].mean() > 0.5, a
+    r_before, r_after = rollout.returns_between(0, 0.2), rollout.returns_between(0.2, 1)
+    assert r_before[1] > r_before[0] + 0.5 and r_after[0] > r_after[1] + 0.5
+
+
+def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(tracking_run: Path) -> None:
+    # On a tracking run, the smooth weight reaches the policy exactly from the switch on, and the
+    # action-rate measure the smooth objective penalizes is computed per step. (Whether a policy
+    # trained for seconds then acts smoother is not something it has learnt; docs/tune.md shows
+    # the effect on a trained biped20 run.)
+    tenv = TuneEnv(tracking_run, "sway1")
+    assert tenv.motion == "sway1" and tenv.names == TRACKING7
+    from amorctl.schedule import parse_schedule
+
+    sched = parse_schedule(
+        {
+            "interpolation": "step",
+            "keyframe": [
+                {"t": 0.0, "weights": {n: 1 for n in TRACKING7[:-1]}},
+                {"t": 0.4, "weights": {"smooth": 1}},
+            ],
+        },
+        tenv.names,
+    )
+    rollout = run_tune(tenv, sched, seconds=0.8, stop_on_fall=False)
+    assert len(rollout.times) == 40
+    np.testing.assert_allclose(rollout.weights[:20, -1], 0.0)
+    np.testing.assert_allclose(rollout.weights[20:], [[0, 0, 0, 0, 0, 0, 1]] * 20, atol=1e-6)
+    rate = rollout.action_rate()
+    expected = ((rollout.actions[1:] - rollout.actions[:-1]) ** 2).sum(axis=1)
+    expected[rollout.terminated[:-1]] = 0.0
+    np.testing.assert_allclose(rate[1:], expected, rtol=1e-6)
+    assert rate[0] == 0.0
+    # the rollout starts at the clip's first frame in the reference state
+    lib = tenv.base.library
+    first = int(lib.starts[tenv.pinned.clip_index])
+    np.testing.assert_allclose(rollout.ref_joint_pos[0], lib.joint_pos[first + 1], atol=1e-6)
+
+
+# ---------------------------------------------------------------------------- MCAP log and plot
+
+
+def test_mcap_log_round_trips_with_the_expected_channels_and_counts(
+    tracking_run: Path, tmp_path: Path
+) -> None:
+    tenv = TuneEnv(tracking_run, "sway0")
+    w = np.array([1, 1, 1, 1, 1, 1, 3], dtype=np.float64) / 9
+    rollout = run_tune(tenv, w, seconds=0.3, stop_on_fall=False)
+    t = len(rollout.times)
+    assert t == 15
+    path = tmp_path / "rollout.mcap"
+    write_rollout_mcap(rollout, path)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file left
+    msgs = read_rollout_mcap(path)
+    counts = {k: len(v) for k, v in msgs.items()}
+    assert counts == {
+        TOPIC_TF: t,
+        TOPIC_SCENE: 1,
+        TOPIC_JOINTS: t,
+        TOPIC_REF_JOINTS: t,
+        TOPIC_ACTIONS: t,
+        TOPIC_WEIGHTS: t,
+        TOPIC_REWARDS: t,
+    }
+    bodies = len(tenv.body_names)
+    tf0 = msgs[TOPIC_TF][0]
+    assert len(tf0.transforms) == 2 * bodies  # the character and the reference ghost
+    assert tf0.transforms[0].parent_frame_id == "world"
+    assert tf0.transforms[0].child_frame_id == tenv.body_names[0]
+    assert tf0.transforms[bodies].child_frame_id == "ref/" + tenv.body_names[0]
+    last = msgs[TOPIC_TF][-1].transforms[0]
+    np.testing.assert_allclose(
+        [last.translation.x, last.translation.y, last.translation.z], rollout.body_pos[-1, 0], atol=1e-9
+    )
+    q = last.rotation
+    np.testing.assert_allclose([q.w, q.x, q.y, q.z], rollout.body_quat[-1, 0], atol=1e-9)
+    entities = msgs[TOPIC_SCENE][0].entities
+    assert len(entities) == 2 * bodies and sum(len(e.cubes) for e in entities) > 0
+    weights = msgs[TOPIC_WEIGHTS]
+    assert set(weights[0]) == {"t", *TRACKING7}
+    np.testing.assert_allclose([weights[3][n] for n in TRACKING7], w, atol=1e-6)
+    np.testing.assert_allclose([m["t"] for m in weights], rollout.times)
+    np.testing.assert_allclose([msgs[TOPIC_REWARDS][5][n] for n in TRACKING7], rollout.rewards[5], rtol=1e-6)
+    np.testing.assert_allclose(msgs[TOPIC_ACTIONS][7]["values"], rollout.actions[7], rtol=1e-6)
+    joints = msgs[TOPIC_JOINTS][2]
+    assert joints["name"] == list(tenv.base.library.joint_names)
+    np.testing.assert_allclose(joints["position"], rollout.joint_pos[2], atol=1e-9)
+
+    plot = tmp_path / "plot.png"
+    plot_rollout(rollout, plot)
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and plot.stat().st_size > 10_000
+
+
+def test_toy_runs_log_actions_weights_and_rewards_only(toy_run: Path, tmp_path: Path) -> None:
+    rollout = run_tune(TuneEnv(toy_run), np.array([0.25, 0.75]), seconds=0.1, stop_on_fall=False)
+    write_rollout_mcap(rollout, tmp_path / "toy.mcap")
+    msgs = read_rollout_mcap(tmp_path / "toy.mcap")
+    assert {k: len(v) for k, v in msgs.items()} == {TOPIC_ACTIONS: 5, TOPIC_WEIGHTS: 5, TOPIC_REWARDS: 5}
+    assert msgs[TOPIC_WEIGHTS][0] == {"t": 0.0, "right": 0.25, "left": 0.75}
+
+
+# ---------------------------------------------------------------------------- CLI
+
+
+def test_cli_runs_a_schedule_and_writes_log_plot_and_json(
+    tracking_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    import json
+
+    sched = tmp_path / "s.toml"
+    dump_schedule([(0.0, {"up": 1}), (0.2, {"smooth": 1})], TRACKING7, sched, interpolation="step")
+    out, plot = tmp_path / "r.mcap", tmp_path / "r.png"
+    code, stdout, err = run_cli(
+        capsys, "tune", str(tracking_run), "--motion", "sway1", "--schedule", str(sched), "--seconds", "0.4",
+        "--no-stop-on-fall", "--out", str(out), "--plot", str(plot), "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    result = json.loads(stdout)
+    assert result["motion"] == "sway1" and result["steps"] == 20
+    assert [s["t0"] for s in result["segments"]] == [0.0, 0.2]
+    assert [s["steps"] for s in result["segments"]] == [10, 10]
+    assert set(result["returns"]) == set(TRACKING7)
+    assert out.is_file() and plot.is_file()
+    assert len(read_rollout_mcap(out)[TOPIC_WEIGHTS]) == 20
+
+    code, stdout, err = run_cli(capsys, "tune", str(tracking_run), "--motion", "sway", "--weights", "up=1")
+    assert code == 2 and "ambiguous" in err and "sway0, sway1" in err
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [
+        ("unknown motion", r"no motion 'dance' in the biped20 dataset; clips: sway0, sway1"),
+        ("bad schedule", r"schedule .*bad\.toml: keyframe 1 \(t=0\): unknown objective 'upp'"),
+        ("schedule motion", r"schedule .*bad\.toml: motion 'dance': unknown motion"),
+        ("missing checkpoint", r"checkpoints: no checkpoint"),
+        ("no run", r"run directory not found"),
+        ("both", r"exactly one of --weights or --schedule"),
+        ("bad weights", r"unknown objective"),
+    ],
+)
+def test_cli_bad_input_fails_cleanly_without_partial_files(
+    tracking_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture, case: str, message: str
+) -> None:
+    run = str(tracking_run)
+    bad = tmp_path / "bad.toml"
+    args = ["--weights", "up=1"]
+    if case == "unknown motion":
+        args += ["--motion", "dance"]
+    elif case == "bad schedule":
+        bad.write_text("[[keyframe]]\nt = 0\nweights = { upp = 1 }\n")
+        args = ["--schedule", str(bad)]
+    elif case == "schedule motion":
+        bad.write_text("[motion.dance]\n[[motion.dance.keyframe]]\nt = 0\nweights = { up = 1 }\n")
+        args = ["--schedule", str(bad)]
+    elif case == "missing checkpoint":
+        run_copy = tmp_path / "copy"
+        run_copy.mkdir()
+        shutil.copy(tracking_run / "config.toml", run_copy / "config.toml")
+        run = str(run_copy)
+    elif case == "no run":
+        run = str(tmp_path / "nope")
+    elif case == "both":
+        bad.write_text("[[keyframe]]\nt = 0\nweights = { up = 1 }\n")
+        args += ["--schedule", str(bad)]
+    elif case == "bad weights":
+        args = ["--weights", "upp=1"]
+    outs = tmp_path / "outs"
+    outs.mkdir()
+    code, _, err = run_cli(
+        capsys, "tune", run, *args, "--out", str(outs / "r.mcap"), "--plot", str(outs / "r.png")
+    )
+    assert code == 2
+    assert re.search(message, err), err
+    assert err.startswith("error: ") and "Traceback" not in err
+    assert list(outs.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------- live session (no browser)
+
+
+def test_live_session_slider_reaches_the_policy_on_the_next_step(tracking_run: Path, tmp_path: Path) -> None:
+    from amorctl.live import LiveSession
+
+    session = LiveSession(TuneEnv(tracking_run, "sway0"), save_to=tmp_path / "rec.toml")
+    rec = session.step()
+    assert rec is not None
+    np.testing.assert_allclose(session.weights_seen_by_policy, np.full(7, 1 / 7), atol=1e-6)
+    np.testing.assert_allclose(session.set_slider("smooth", 0.0), [1 / 6] * 6 + [0], atol=1e-12)
+    session.step()
+    np.testing.assert_allclose(session.weights_seen_by_policy, [1 / 6] * 6 + [0], atol=1e-6)
+    session.set_slider("up", 0.5)
+    session.step()
+    np.testing.assert_allclose(
+        session.weights_seen_by_policy, np.array([0.5, 1, 1, 1, 1, 1, 0]) / 5.5, atol=1e-6
+    )
+    with pytest.raises(AmorError, match="unknown objective 'upp'"):
+        session.set_slider("upp", 1)
+    with pytest.raises(AmorError, match="outside"):
+        session.set_slider("up", 2)
+
+    # pause: no step, no time; resume
+    t = session.t
+    session.pause()
+    assert session.step() is None and session.t == t
+    session.resume()
+
+    # keyframes at the current time, saved as a schedule that --schedule reads back
+    with pytest.raises(AmorError, match="no keyframes recorded"):
+        session.save_schedule()
+    session.restart()
+    assert session.t == 0.0
+    session.record_keyframe()
+    for _ in range(10):
+        session.step()
+    session.set_slider("smooth", 1.0)
+    t1, w1 = session.record_keyframe()
+    assert t1 == pytest.approx(0.2)
+    path = session.save_schedule()
+    sched = load_schedule(path, TRACKING7, ["sway0", "sway1"])
+    np.testing.assert_allclose(sched.weights_at(0.0), np.array([0.5, 1, 1, 1, 1, 1, 0]) / 5.5, atol=1e-12)
+    np.testing.assert_allclose(sched.weights_at(0.2), w1, atol=1e-12)
+
+    # switching motion restarts it; an unknown one is refused and changes nothing
+    session.set_motion("sway1")
+    assert session.motion == "sway1" and session.t == 0.0
+    with pytest.raises(AmorError, match="no motion 'dance'"):
+        session.set_motion("dance")
+    assert session.motion == "sway1"
+
+
+# ---------------------------------------------------------------------------- live page in Chromium
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 90.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise AssertionError(f"tune --live exited with {proc.returncode}: {proc.stderr.read()}")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as resp:
+                if resp.status == 200:
+                    return
+        except OSError:
+            time.sleep(0.3)
+    raise AssertionError(f"{url} did not come up in {timeout} s")
+
+
+def _policy_sees(page, name: str) -> float:  # type: ignore[no-untyped-def]
+    """The 'policy sees' cell of objective ``name`` in the page's weights table."""
+    row = page.locator("tr", has=page.locator("td", has_text=re.compile(f"^{name}$")))
+    return float(row.locator("td").nth(2).inner_text())
+
+
+@pytest.mark.skipif(
+    not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} not installed (CI installs Debian's chromium)"
+)
+def test_live_page_in_headless_chromium(
+    tracking_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (test extra) not installed")
+    port = _free_port()
+    saved = tmp_path / "recorded.toml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "amorctl.cli.main", "tune", str(tracking_run), "--live", "--motion", "sway0",
+         "--port", str(port), "--save-to", str(saved)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        url = f"http://127.0.0.1:{port}/"
+        _wait_http(url, proc)
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(
+                executable_path=CHROMIUM,
+                headless=True,
+                args=CHROMIUM_FLAGS,  # Playwright itself gives it a fresh temporary profile
+            )
+            page = browser.new_page(viewport={"width": 1100, "height": 720})
+            page.goto(url)
+            sliders = page.get_by_role("slider")
+            sliders.first.wait_for(timeout=60_000)
+            assert sliders.count() == 7
+            page.wait_for_function(
+                "() => [...document.querySelectorAll('td')].some(td => td.innerText === '0.143')",
+                timeout=30_000,
+            )
+            assert _policy_sees(page, "smooth") == pytest.approx(1 / 7, abs=1e-3)
+
+            # move the smooth slider to 0 from the keyboard: the policy's weights follow
+            sliders.nth(6).focus()
+            page.keyboard.press("Home")
+            page.wait_for_function(
+                "() => [...document.querySelectorAll('tr')].some(tr => tr.innerText.startsWith('smooth')"
+                " && tr.innerText.trim().endsWith('0.000'))",
+                timeout=30_000,
+            )
+            assert _policy_sees(page, "smooth") == 0.0
+            assert _policy_sees(page, "up") == pytest.approx(1 / 6, abs=1e-3)
+
+            shot = os.environ.get("AMORCTL_TUNE_SCREENSHOT")
+            if shot:  # docs/img/tune-live.png is made this way (docs/tune.md)
+                close = page.locator(".mantine-Notification-closeButton")  # "software WebGL" notice
+                if close.count():
+                    close.first.click()
+                time.sleep(1.0)
+                page.screenshot(path=shot)
+
+            # record a keyframe, move another slider, record again, save the schedule
+            page.get_by_role("button", name="record keyframe").click()
+            page.wait_for_function("() => document.body.innerText.includes('keyframes: 1')", timeout=30_000)
+            sliders.nth(0).focus()
+            for _ in range(50):
+                page.keyboard.press("ArrowLeft")
+            time.sleep(0.3)
+            page.get_by_role("button", name="record keyframe").click()
+            page.wait_for_function("() => document.body.innerText.includes('keyframes: 2')", timeout=30_000)
+            page.get_by_role("button", name="save schedule").click()
+            page.wait_for_function("() => document.body.innerText.includes('saved:')", timeout=30_000)
+            browser.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, proc.stderr.read()
+
+    # the saved keyframes load as a schedule: smooth 0 in both, up lowered in the second
+    sched = load_schedule(saved, TRACKING7, ["sway0", "sway1"])
+    rows = sched.track_for().weights  # in time order; the motion may have looped in between
+    assert rows.shape == (2, 7) and (rows[:, -1] == 0.0).all()
+    first = int(np.argmax(rows[:, 0]))
+    np.testing.assert_allclose(rows[first], [1 / 6] * 6 + [0], atol=1e-9)
+    assert rows[1 - first, 0] < rows[first, 0] - 0.05
+    code, stdout, err = run_cli(
+        capsys, "tune", str(tracking_run), "--schedule", str(saved), "--seconds", "0.2"
+    )
+    assert code == 0, err
+    assert "per-objective return" in stdout
