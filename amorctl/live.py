@@ -303,6 +303,8 @@ class LiveApp:
 
     def _build_scene(self) -> None:
         scene, tenv = self.server.scene, self.session.tenv
+        scene.configure_default_lights(cast_shadow=False)  # shadows are slow in software WebGL
+        scene.configure_environment_map(hdri=None)  # nothing to fetch: the page works offline
         scene.add_grid("/ground", width=6.0, height=6.0, cell_size=0.25, plane="xy")
         self.frames: list[Any] = []
         self.ghost: list[Any] = []
@@ -343,9 +345,12 @@ class LiveApp:
 
     def _refresh_scene(self) -> None:
         s, tenv = self.session, self.session.tenv
+        with s._lock:  # not in the middle of a step or a motion switch
+            pose = tenv.poses()
+            state = float(tenv.obs[0, 0])
+            action = 0.0 if s.last is None else float(s.last.action[0])
         with self.server.atomic():
             if tenv.tracking:
-                pose = tenv.poses()
                 for store, pos, quat in (
                     (self.frames, pose["body_pos"], pose["body_quat"]),
                     (self.ghost, pose["ref_body_pos"], pose["ref_body_quat"]),
@@ -354,8 +359,6 @@ class LiveApp:
                         frame.position = tuple(pos[b])
                         frame.wxyz = tuple(quat[b])
             else:
-                state = float(tenv.obs[0, 0])
-                action = 0.0 if s.last is None else float(s.last.action[0])
                 self.toy_action.position = (action, 0.0, 0.1)
                 self.toy_right.position = (1.0 + state, 0.0, 0.05)
                 self.toy_left.position = (-1.0 + state, 0.0, 0.05)

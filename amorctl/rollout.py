@@ -96,6 +96,7 @@ class Rollout:
         frame_index: [T, N] int, the library frame the step tracked (tracking envs only).
         qpos: [T, N, nq] float64, simulator state after the step (only with ``record_qpos``;
             for an env that reset in the step, its new episode's first state).
+        batched_steps: control steps the batch took (T when per-step arrays were recorded).
     """
 
     objective_names: tuple[str, ...]
@@ -114,10 +115,11 @@ class Rollout:
     ref_ee_pos: np.ndarray | None = None
     frame_index: np.ndarray | None = None
     qpos: np.ndarray | None = None
+    batched_steps: int = 0
 
     @property
     def num_steps(self) -> int:
-        """T."""
+        """T, the recorded steps (0 without ``record_steps``; see ``batched_steps``)."""
         return int(self.valid.shape[0])
 
 
@@ -310,7 +312,7 @@ def rollout(
         row_of_slot = np.full(n * episodes + 1, -1, dtype=np.int64)
         row_of_slot[eps.env * episodes + eps.index] = np.arange(eps.count)
         episode_id = row_of_slot[np.where(slots >= 0, slots, n * episodes)]
-    out = Rollout(names, dt, eps, valid, episode_id)
+    out = Rollout(names, dt, eps, valid, episode_id, batched_steps=step)
     for key, seq in steps.items():
         setattr(out, key, np.stack(seq))
     return out

@@ -77,6 +77,7 @@ def test_rollout_counts_episodes_across_auto_resets() -> None:
     np.add.at(sums, ro.episode_id[ro.episode_id >= 0], ro.rewards[ro.episode_id >= 0])
     np.testing.assert_allclose(sums, eps.returns, rtol=1e-5)
     assert ro.done[ro.valid].sum() == 18
+    assert ro.batched_steps == ro.num_steps == ro.valid.shape[0]
     # a = 1 with s in [-1, 1]: right = exp(-s^2) >= exp(-1) per step.
     assert (eps.returns[:, 0] >= np.exp(-1.0) * eps.length - 1e-5).all()
 

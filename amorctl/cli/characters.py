@@ -21,9 +21,20 @@ def list_characters(json_out: JsonFlag = False) -> None:
     registry = get_registry()
     specs = [registry.character(n) for n in registry.names("character")]
     if json_out:
-        print_json({"characters": [
-            {"name": s.name, "description": s.description, "num_joints": s.num_joints,
-             "physics_hz": s.physics_hz, "control_hz": s.control_hz} for s in specs]})
+        print_json(
+            {
+                "characters": [
+                    {
+                        "name": s.name,
+                        "description": s.description,
+                        "num_joints": s.num_joints,
+                        "physics_hz": s.physics_hz,
+                        "control_hz": s.control_hz,
+                    }
+                    for s in specs
+                ]
+            }
+        )
         return
     table = Table(title="characters")
     for col in ("name", "joints", "physics Hz", "control Hz", "description"):
@@ -58,6 +69,12 @@ def show_character(
         table.add_column(col)
     for j in info["joints"]:
         lo, hi = j["range_deg"]
-        table.add_row(j["name"], j["group"], f"{lo:.0f} … {hi:.0f}", f"{j['kp']:g}", f"{j['kd']:g}",
-                      f"{j['torque_limit']:g}")
+        table.add_row(
+            j["name"],
+            j["group"],
+            f"{lo:.0f} … {hi:.0f}",
+            f"{j['kp']:g}",
+            f"{j['kd']:g}",
+            f"{j['torque_limit']:g}",
+        )
     console.print(table)

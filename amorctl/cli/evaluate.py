@@ -153,6 +153,8 @@ def evaluate(
     if video is not None and video.suffix.lower() != ".mp4":
         raise AmorError(f"--video {video}: the file must end in .mp4")
     policy, config = open_run(run)
+    if video is not None and config.env.kind != "tracking":
+        raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
     names = tuple(policy.objectives)
     sched = load_schedule(schedule, names) if schedule is not None else None
     settings = _settings(names, weights, sched, compare)

@@ -105,6 +105,8 @@ def tune(
     _check_outputs([out, plot, video])
     render_video = None
     if video is not None:
+        if video.suffix.lower() != ".mp4":
+            raise AmorError(f"--video {video}: the file must end in .mp4")
         try:
             from amorctl.render import render_video
         except ImportError:
@@ -129,23 +131,30 @@ def tune(
             sched = load_schedule(schedule, tenv.names, tenv.motions or None)
         rollout = run_tune(tenv, sched if sched is not None else w0, seconds, stop_on_fall=stop_on_fall)
     finally:
-        if not live:
-            tenv.close()
+        tenv.close()
 
-    if out is not None:
-        write_rollout_mcap(rollout, out, {"run": str(run), "seed": str(seed)})
-    if plot is not None:
-        plot_rollout(rollout, plot, title=f"{run.name} — {rollout.motion or 'rollout'}")
-    if video is not None and render_video is not None:
-        render_video(
-            video,
-            tenv.config.env.character,
-            rollout.qpos,
-            ref_qpos=rollout.ref_qpos,
-            weights=rollout.weights,
-            objective_names=rollout.objective_names,
-            fps=1.0 / rollout.dt,
-        )
+    written: list[Path] = []
+    try:  # all outputs or none: a later failure removes the files written before it
+        if out is not None:
+            write_rollout_mcap(rollout, out, {"run": str(run), "seed": str(seed)})
+            written.append(out)
+        if plot is not None:
+            plot_rollout(rollout, plot, title=f"{run.name} — {rollout.motion or 'rollout'}")
+            written.append(plot)
+        if video is not None and render_video is not None:
+            render_video(
+                video,
+                tenv.config.env.character,
+                rollout.qpos,
+                ref_qpos=rollout.ref_qpos,
+                weights=rollout.weights,
+                objective_names=rollout.objective_names,
+                fps=1.0 / rollout.dt,
+            )
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
 
     kf_times = np.zeros(0)
     if sched is not None:

@@ -9,6 +9,7 @@ The map (see ``docs/preprocess.md``)::
     [options]
     scale = 0.01        # BVH length unit -> metres (default 1.0)
     up = "y"            # the BVH file's up axis: "y" (the BVH convention, default) or "z"
+    forward = "+x"      # the direction the rest pose faces, in BVH axes (CMU files: "+z")
 
 BVH joints that the map does not name still take part in forward kinematics (their rotations are
 folded into the mapped joints'). The rest pose (all channels zero) must be the canonical rest pose
@@ -31,11 +32,10 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from amorctl.errors import AmorError
-from amorctl.geometry import quat_conj, quat_from_rotvec, quat_mul, quat_normalize, quat_rotate
+from amorctl.geometry import quat_conj, quat_from_mat, quat_from_rotvec, quat_mul, quat_normalize, quat_rotate
 from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import (
     C_DM_TO_MJ,
-    C_DM_TO_MJ_QUAT,
     CANONICAL_JOINTS,
     Skeleton,
     SourceMotion,
@@ -206,6 +206,15 @@ class JointMap:
     joints: dict[str, str]
     scale: float = 1.0
     up: str = "y"
+    forward: str = "+x"
+
+    def to_mujoco(self) -> np.ndarray:
+        """[3, 3] rotation from BVH axes to MuJoCo axes with the rest pose facing +x (z up)."""
+        m = C_DM_TO_MJ if self.up == "y" else np.eye(3)
+        f = m @ (float(self.forward[0] + "1") * np.eye(3)["xyz".index(self.forward[1])])
+        yaw = -np.arctan2(f[1], f[0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ m
 
 
 def load_joint_map(path: Path) -> JointMap:
@@ -231,16 +240,21 @@ def load_joint_map(path: Path) -> JointMap:
     if missing:
         raise AmorError(f"{path}: no BVH joint given for {', '.join(missing)} in [joints]")
     opts = doc.get("options", {})
-    extra = set(opts) - {"scale", "up"}
+    extra = set(opts) - {"scale", "up", "forward"}
     if extra:
-        raise AmorError(f"{path}: unknown option {sorted(extra)[0]!r} in [options] (known: scale, up)")
+        raise AmorError(
+            f"{path}: unknown option {sorted(extra)[0]!r} in [options] (known: scale, up, forward)"
+        )
     scale = opts.get("scale", 1.0)
     up = opts.get("up", "y")
     if not isinstance(scale, (int, float)) or not scale > 0:
         raise AmorError(f"{path}: [options] scale must be a positive number")
     if up not in ("y", "z"):
         raise AmorError(f'{path}: [options] up must be "y" or "z"')
-    return JointMap(joints=dict(joints), scale=float(scale), up=up)
+    forward = opts.get("forward", "+x")
+    if forward not in ("+x", "-x", "+y", "-y", "+z", "-z") or forward[1] == up:
+        raise AmorError(f"{path}: [options] forward must be one of +x, -x, +y, -y, +z, -z, not the up axis")
+    return JointMap(joints=dict(joints), scale=float(scale), up=up, forward=forward)
 
 
 def bvh_local_transforms(bvh: BvhFile) -> tuple[np.ndarray, np.ndarray]:
@@ -289,12 +303,12 @@ def bvh_to_source(
             gpos[:, j] = gpos[:, p] + quat_rotate(grot[:, p], trans[:, j])
             grot[:, j] = quat_mul(grot[:, p], rots[:, j])
             rest[j] = rest[p] + joint.offset * jmap.scale
-    # BVH axes -> MuJoCo axes.
-    if jmap.up == "y":
-        cq = np.broadcast_to(C_DM_TO_MJ_QUAT, grot.shape)
-        grot = quat_mul(quat_mul(cq, grot), quat_conj(cq))
-        gpos = gpos @ C_DM_TO_MJ.T
-        rest = rest @ C_DM_TO_MJ.T
+    # BVH axes -> MuJoCo axes (z up, rest pose facing +x): rotations conjugated, vectors rotated.
+    m = jmap.to_mujoco()
+    mq = np.broadcast_to(quat_from_mat(m), grot.shape)
+    grot = quat_mul(quat_mul(mq, grot), quat_conj(mq))
+    gpos = gpos @ m.T
+    rest = rest @ m.T
     idx = [names.index(jmap.joints[c]) for c in CANONICAL_JOINTS]
     parents = deepmimic_skeleton().parents
     offsets = np.zeros((len(CANONICAL_JOINTS), 3))
@@ -343,9 +357,7 @@ def _keypoints(
             off = joint.end_site
         else:
             off = np.zeros(3)
-        off = off * jmap.scale
-        if jmap.up == "y":
-            off = C_DM_TO_MJ @ off
+        off = jmap.to_mujoco() @ (off * jmap.scale)
         return (float(off[0]), float(off[1]), float(off[2]))
 
     return {

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from amorctl.errors import AmorError
 from amorctl.geometry import quat_conj, quat_mul, quat_to_rotvec
 from amorctl.motion.importers import ImportOptions, import_file
 from amorctl.motion.source import (
@@ -118,3 +119,43 @@ def test_bvh_in_centimetres_with_renamed_joints(clip_path, tmp_path):
     )
     back = import_file(path, None, ImportOptions(joint_map=mp))
     np.testing.assert_allclose(back.root_pos, src.root_pos, atol=1e-5)
+
+
+def test_bvh_facing_plus_z_with_forward_option(clip_path, tmp_path):
+    """A skeleton whose rest pose faces +z in BVH axes (as CMU's) reads back facing +x."""
+    from amorctl.geometry import quat_from_rotvec, quat_rotate
+
+    src = import_file(clip_path("walk"), None, ImportOptions())
+    dt = float(np.median(np.diff(src.times)))
+    # In MuJoCo axes, BVH +z is -y: turn the whole motion (and its rest pose) by -90° about z.
+    turn = quat_from_rotvec(np.array([0.0, 0.0, -np.pi / 2]))
+    n = src.local_quat.shape[:2]
+    t = np.broadcast_to(turn, (*n, 4))
+    local = quat_mul(quat_mul(t, src.local_quat), quat_conj(t))
+    skel = src.skeleton
+    turned = SourceMotion(
+        **{
+            **src.__dict__,
+            "times": np.arange(src.times.shape[0]) * dt,
+            "root_pos": quat_rotate(np.broadcast_to(turn, (n[0], 4)), src.root_pos),
+            "local_quat": local,
+            "skeleton": type(skel)(
+                skel.names,
+                skel.parents,
+                quat_rotate(np.broadcast_to(turn, (n[1], 4)), skel.offsets),
+                skel.keypoints,
+            ),
+        }
+    )
+    path = tmp_path / "walk_z.bvh"
+    write_bvh(turned, path, dt)
+    mp = tmp_path / "z.toml"
+    mp.write_text(IDENTITY_MAP + '[options]\nforward = "+z"\n')
+    back = import_file(path, None, ImportOptions(joint_map=mp))
+    np.testing.assert_allclose(back.root_pos, src.root_pos, atol=1e-5)
+    angle = np.linalg.norm(quat_to_rotvec(quat_mul(quat_conj(src.local_quat), back.local_quat)), axis=-1)
+    assert angle.max() < 1e-4
+    bad = tmp_path / "bad.toml"
+    bad.write_text(IDENTITY_MAP + '[options]\nforward = "+y"\n')
+    with pytest.raises(AmorError, match="forward must be"):
+        import_file(path, None, ImportOptions(joint_map=bad))

@@ -16,7 +16,11 @@ from amorctl.trainer import State
 
 
 class TorchPolicy:
-    """``policy(obs [N, D]) -> actions [N, A]`` (the Gaussian mean); ``values(obs) -> [N, m]``."""
+    """``policy(obs [N, D]) -> actions [N, A]`` (the Gaussian mean); ``values(obs) -> [N, m]``.
+
+    Always fp32 (a bf16-trained policy's actions differ from its training-time ones by bf16
+    rounding only).
+    """
 
     def __init__(self, state: State, network: NetworkConfig) -> None:
         meta = state.meta
