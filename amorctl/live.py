@@ -305,6 +305,9 @@ class LiveApp:
         scene, tenv = self.server.scene, self.session.tenv
         scene.configure_default_lights(cast_shadow=False)  # shadows are slow in software WebGL
         scene.configure_environment_map(hdri=None)  # nothing to fetch: the page works offline
+        scene.add_light_hemisphere(
+            "/sky", sky_color=(255, 255, 255), ground_color=(120, 120, 130), intensity=2.0
+        )
         scene.add_grid("/ground", width=6.0, height=6.0, cell_size=0.25, plane="xy")
         self.frames: list[Any] = []
         self.ghost: list[Any] = []

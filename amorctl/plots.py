@@ -63,18 +63,22 @@ def pareto_figure(sweep: Any, paths: list[Path]) -> None:
                     label=grp.motion if (row, col) == (0, 0) else None,
                 )  # fmt: skip
                 ax.scatter(
-                    [grp.equal_point[i]], [grp.equal_point[j]], marker="x", s=60, color="black",
-                    linewidths=1.6, label="equal weights (1/m)" if (row, col, gi) == (0, 0, 0) else None,
+                    [grp.equal_point[i]], [grp.equal_point[j]], marker="x", s=70, color=c, linewidths=2.0,
                 )  # fmt: skip
             if row == cells - 1:
                 ax.set_xlabel(names[i])
             if col == 0:
                 ax.set_ylabel(names[j])
             ax.tick_params(labelsize=7)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    from matplotlib.lines import Line2D
+
+    handles.append(Line2D([], [], marker="x", color="black", linestyle="", markersize=8, markeredgewidth=2))
+    labels.append("equal weights (1/m), motion's colour")
     if m <= 2:
-        axes[0][0].legend(fontsize=8, loc="best")
+        axes[0][0].legend(handles, labels, fontsize=8, loc="best")
     else:  # the empty upper-right triangle holds the legend
-        handles, labels = axes[0][0].get_legend_handles_labels()
+        fig.subplots_adjust(top=0.95)
         fig.legend(handles, labels, loc="upper right", bbox_to_anchor=(0.98, 0.93), fontsize=9, frameon=False)
     k = sweep.weights.shape[0]
     fig.suptitle(

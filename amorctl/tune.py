@@ -13,6 +13,7 @@ paper's teaser / Fig. 7 (w(t) as stacked areas above the per-objective rewards).
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -477,6 +478,14 @@ def run_tune(
 
 # ---------------------------------------------------------------------------- MCAP log
 
+
+def _readable(tmp: Path) -> None:
+    """Give a finished temporary output the permissions a plain ``open()`` would (mkstemp's are 0600)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+
+
 #: Topics of the rollout log (see docs/tune.md).
 TOPIC_TF = "/tf"
 TOPIC_SCENE = "/character"
@@ -600,6 +609,7 @@ def write_rollout_mcap(
                 ref_joints.log(
                     {"name": jn, "position": rollout.ref_joint_pos[k].tolist(), "velocity": []}, log_time=lt
                 )
+        _readable(tmp)
 
 
 def _scene_update(rollout: TuneRollout) -> Any:
@@ -709,4 +719,5 @@ def plot_rollout(rollout: TuneRollout, path: str | Path, title: str = "") -> Non
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
+        _readable(tmp)
     plt.close(fig)

@@ -116,7 +116,10 @@ def test_duplicate_names_are_an_error_naming_both_packages() -> None:
 def test_broken_plugin_is_reported_and_the_rest_loads() -> None:
     good = _plugin(amorctl_register_characters=lambda register: register(_character("good")))
     registry = load_registry(
-        eps=[_ep("broken", ImportError("no module named 'missing_dep'"), "broken-pkg", "0.1"), _ep("ok", good)]
+        eps=[
+            _ep("broken", ImportError("no module named 'missing_dep'"), "broken-pkg", "0.1"),
+            _ep("ok", good),
+        ]
     )
     assert registry.names("character") == ["good"]
     (problem,) = registry.problems
@@ -129,8 +132,9 @@ def test_plugin_whose_hook_raises_is_reported() -> None:
         raise RuntimeError("boom")
 
     good = _plugin(amorctl_register_characters=lambda register: register(_character("good")))
-    registry = load_registry(eps=[_ep("bad", _plugin(amorctl_register_characters=explode), "bad-pkg"),
-                                  _ep("ok", good)])
+    registry = load_registry(
+        eps=[_ep("bad", _plugin(amorctl_register_characters=explode), "bad-pkg"), _ep("ok", good)]
+    )
     assert registry.names("character") == ["good"]
     assert registry.problems[0].package == "bad-pkg" and "boom" in registry.problems[0].error
 

@@ -491,3 +491,30 @@ def test_live_page_in_headless_chromium(
     )
     assert code == 0, err
     assert "per-objective return" in stdout
+
+
+def test_live_app_steps_a_toy_run_in_the_background_and_stops(toy_run: Path) -> None:
+    # the page for a run without a character (the toy task's scene), served and stepped in-process
+    from amorctl.live import LiveApp, LiveSession
+
+    session = LiveSession(TuneEnv(toy_run), np.array([1.0, 0.0]))
+    app = LiveApp(session, host="127.0.0.1", port=_free_port(), realtime=False).start()
+    try:
+        with urllib.request.urlopen(app.url, timeout=10) as resp:
+            assert resp.status == 200
+        deadline = time.monotonic() + 30
+        while session.steps_total < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        np.testing.assert_allclose(session.weights_seen_by_policy, [1.0, 0.0])
+        session.set_slider("left", 1.0)
+        target = session.steps_total + 2
+        while session.steps_total < target and time.monotonic() < deadline:
+            time.sleep(0.05)
+        np.testing.assert_allclose(session.weights_seen_by_policy, [0.5, 0.5])
+        x, _, z = app.toy_action.position  # the action ball is posed from the last action
+        assert z == pytest.approx(0.1) and -3.0 <= x <= 3.0 and x != 0.0
+    finally:
+        app.stop()
+    assert app.error is None
+    with pytest.raises(OSError):
+        urllib.request.urlopen(app.url, timeout=2)

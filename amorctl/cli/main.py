@@ -64,8 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # anything unexpected: one line unless debugging
         if debug:
             raise
-        print(f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
-              file=sys.stderr)
+        print(
+            f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

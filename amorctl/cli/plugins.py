@@ -26,5 +26,8 @@ def plugins(json_out: JsonFlag = False) -> None:
     console.print(table)
     for prob in registry.problems:
         detail = f": {prob.error}" if prob.error else ""
-        console.print(f"[yellow]{prob.status}[/yellow] plugin {prob.plugin!r} from package "
-                      f"{prob.package!r} {prob.version}{detail}", highlight=False)
+        console.print(
+            f"[yellow]{prob.status}[/yellow] plugin {prob.plugin!r} from package "
+            f"{prob.package!r} {prob.version}{detail}",
+            highlight=False,
+        )

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -104,9 +103,6 @@ def write_dataset(
     """Write ``library`` as an MCAP dataset, atomically (temp file + rename)."""
     clip_stats = clip_stats or {}
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # the temporary file is private; the dataset is not
         writer = Writer(f, compression=CompressionType.ZSTD)
         writer.start(profile="", library=f"amorctl {__version__}")
         meta = {

@@ -7,6 +7,7 @@ through the ``amorctl`` entry-point group, with no change to amorctl itself.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 from amorctl.registry import hookimpl
@@ -58,6 +59,6 @@ SPEC = CharacterSpec(
 
 
 @hookimpl
-def amorctl_register_characters(register) -> None:  # noqa: ANN001 - the hookspec types it
+def amorctl_register_characters(register: Callable[[CharacterSpec], None]) -> None:
     """Provide stickman12."""
     register(SPEC)
