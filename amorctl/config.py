@@ -49,7 +49,9 @@ class RunConfig:
 class EnvConfig:
     """Which environment is trained, and how many copies run in parallel."""
 
-    kind: str = _doc("tracking", "environment: tracking (motion tracking), toy (two-objective toy), gym")
+    kind: str = _doc(
+        "tracking", "environment: tracking (motion tracking), toy, toy-smooth (two-objective toys), gym"
+    )
     character: str = _doc("biped20", "character plugin (kind=tracking)")
     dataset: str = _doc("", "motion dataset file; empty = the character's built-in default clips")
     objective_set: str = _doc("tracking7", "objective-set plugin (kind=tracking)")
@@ -107,7 +109,7 @@ class TrainConfig:
 
 SECTIONS: dict[str, type] = {"run": RunConfig, "env": EnvConfig, "network": NetworkConfig, "ppo": PPOConfig}
 PRESETS: tuple[str, ...] = ("quick", "paper")
-ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "gym")
+ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
 ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
 PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")

@@ -69,7 +69,7 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
     """Build the configured env, seeded with ``run.seed``, wrapped for fixed weights if asked.
 
     ``kind="tracking"`` asks the backend (its ``make_env``) for the motion-tracking env;
-    ``toy`` and ``gym`` are backend-independent numpy envs.
+    ``toy``, ``toy-smooth`` and ``gym`` are backend-independent numpy envs.
     """
     e, seed = config.env, config.run.seed
     env: Any
@@ -79,6 +79,10 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
         env = ToyTradeoffEnv(
             e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed
         )
+    elif e.kind == "toy-smooth":
+        from amorctl.envs.toy import ToySmoothEnv
+
+        env = ToySmoothEnv(e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed)
     elif e.kind == "gym":
         from amorctl.envs.mo_gym import make_gym_env
 

@@ -84,3 +84,33 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
         torch.set_num_threads(threads)
     reset_registry()
     return root / "run"
+
+
+# --- a trained toy-smooth run (issue 7's smooth-schedule test): `track` vs `smooth`, seconds ---
+TOY_SMOOTH_RUN_TOML = {
+    "run": {"iterations": 40, "checkpoint_every": 40, "keep_checkpoints": 1, "tensorboard": False,
+            "threads": 1, "seed": 0},
+    "env": {"kind": "toy-smooth", "num_envs": 64, "episode_seconds": 1.0},
+    "network": {"actor_hidden": [32, 32], "critic_hidden": [32, 32], "init_std": 1.0},
+    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3},
+}  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def toy_smooth_run(tmp_path_factory: pytest.TempPathFactory):
+    """A MOPPO policy on the toy-smooth env (``track`` / ``smooth``): it follows the jumping
+    target under w = (1, 0) and holds its action still under w = (0, 1). Its run directory."""
+    import torch
+
+    from amorctl.config import TrainConfig, merge
+    from amorctl.runner import train_run
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("toy-smooth-run") / "run"
+    try:
+        train_run(merge(TrainConfig(), TOY_SMOOTH_RUN_TOML, "toy_smooth_run fixture"), out)
+    finally:
+        torch.set_num_threads(threads)
+    reset_registry()
+    return out

@@ -240,3 +240,14 @@ def test_dump_validates_before_writing(tmp_path: Path) -> None:
     with pytest.raises(AmorError, match="no keyframes"):
         dump_schedule([], NAMES, path)
     assert not path.exists()
+
+
+def test_documented_example_schedules_load() -> None:
+    names = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
+    examples = sorted((Path(__file__).resolve().parents[1] / "docs" / "examples").glob("*.toml"))
+    assert len(examples) >= 2
+    for path in examples:
+        schedule = load_schedule(path, names, motion_names=["walk"])
+        w = schedule.weights_at(10.0)
+        assert abs(float(w.sum()) - 1.0) < 1e-9
+        assert w[names.index("smooth")] > 1.0 / len(names)  # every example ends favouring smooth

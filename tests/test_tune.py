@@ -181,6 +181,81 @@ def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(trackin
     np.testing.assert_allclose(rollout.ref_joint_pos[0], lib.joint_pos[first + 1], atol=1e-6)
 
 
+def _smooth_switch(tenv: TuneEnv, tmp_path: Path, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Roll a toy-smooth run out for 1 s (50 steps, one episode) under a step schedule whose
+    ``smooth`` weight is ``lo`` before 0.5 s and ``hi`` from then on: the mean action rate
+    ``(a_t - a_{t-1})^2`` and the mean rewards [track, smooth], before and after the switch."""
+    sched = tmp_path / f"smooth-{lo}-{hi}.toml"
+    sched.write_text(
+        'interpolation = "step"\n'
+        f"[[keyframe]]\nt = 0\nweights = {{ track = {1 - lo}, smooth = {lo} }}\n"
+        f"[[keyframe]]\nt = 0.5\nweights = {{ track = {1 - hi}, smooth = {hi} }}\n"
+    )
+    rollout = run_tune(tenv, load_schedule(sched, tenv.names), seconds=1.0, stop_on_fall=False)
+    assert len(rollout.times) == 50 and not rollout.terminated.any()
+    before, after = rollout.times < 0.5 - 1e-9, rollout.times >= 0.5 - 1e-9
+    np.testing.assert_allclose(rollout.weights[before], [[1 - lo, lo]] * 25, atol=1e-6)
+    np.testing.assert_allclose(rollout.weights[after], [[1 - hi, hi]] * 25, atol=1e-6)
+    rate = rollout.action_rate()  # rate[0] is 0 (no previous action): left out of "before"
+    rates = np.array([rate[1:25].mean(), rate[after].mean()])
+    rewards = np.stack([rollout.returns_between(0, 0.5), rollout.returns_between(0.5, 1.0)])
+    return rates, rewards
+
+
+def test_raising_smooth_half_way_lowers_the_action_rate_after_the_switch(
+    toy_smooth_run: Path, tmp_path: Path
+) -> None:
+    # Issue 7: on a trained toy policy (track a jumping target vs the `smooth` action-rate
+    # penalty), raising `smooth` half-way makes the policy hold still from the switch on.
+    tenv = TuneEnv(toy_smooth_run)
+    assert tenv.names == ("track", "smooth")
+    (rate_before, rate_after), rewards = _smooth_switch(tenv, tmp_path, 0.05, 0.95)
+    assert rate_before > 0.05 and rate_after < rate_before / 5, (rate_before, rate_after)
+    # the smooth reward (minus the action rate, clipped actions) follows; tracking pays for it
+    assert rewards[1, 1] > rewards[0, 1] + 0.04 and rewards[1, 0] < rewards[0, 0], rewards
+    # and the reverse schedule does the opposite
+    (rate_before, rate_after), rewards = _smooth_switch(tenv, tmp_path, 0.95, 0.05)
+    assert rate_after > 0.05 and rate_before < rate_after / 5, (rate_before, rate_after)
+    assert rewards[1, 1] < rewards[0, 1] - 0.04 and rewards[1, 0] > rewards[0, 0], rewards
+
+
+def test_toy_smooth_env_follows_the_vector_env_contract_and_resumes_exactly() -> None:
+    from amorctl.envs.toy import ToySmoothEnv
+    from amorctl.vecenv import VectorEnv
+
+    env = ToySmoothEnv(4, max_steps=5, hazard=0.2, seed=1)
+    assert isinstance(env, VectorEnv) and env.reward_space.names == ("track", "smooth")
+    obs, _ = env.reset(seed=1)
+    assert obs.shape == (4, env.obs_dim) and obs.dtype == np.float32
+    np.testing.assert_array_equal(obs[:, -2:], env.weights)
+    np.testing.assert_allclose(env.weights.sum(axis=1), 1.0, atol=1e-6)
+    a = np.array([[0.5], [-0.5], [0.0], [3.0]])
+    _, r, _, _, info = env.step(a)
+    s0 = info["final_obs"][:, 0]
+    assert r.shape == (4, 2) and r.dtype == np.float32
+    np.testing.assert_allclose(r[:, 1], -(np.clip(a[:, 0], -2, 2) ** 2), rtol=1e-6)  # a_{-1} = 0
+    np.testing.assert_allclose(info["final_obs"][:, 1], np.clip(a[:, 0], -2, 2))  # a_prev observed
+    assert ((np.abs(s0) >= 0.25) & (np.abs(s0) <= 1.0)).all()
+    snap = env.get_state()
+    rng = np.random.default_rng(0)
+    acts = rng.normal(size=(12, 4, 1))
+    first = [env.step(x) for x in acts]
+    env.set_state(snap)
+    again = [env.step(x) for x in acts]
+    ended = np.zeros(4, dtype=bool)
+    for (o1, r1, te1, tr1, i1), (o2, r2, te2, tr2, i2) in zip(first, again, strict=True):
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(te1, te2)
+        np.testing.assert_array_equal(tr1, tr2)
+        np.testing.assert_array_equal(i1["final_obs"], i2["final_obs"])
+        assert not (te1 & tr1).any()
+        ended |= te1 | tr1
+        # an ended episode restarts with a_prev = 0 and t = 0
+        np.testing.assert_array_equal(o1[te1 | tr1, 1:3], 0.0)
+    assert ended.all()
+
+
 # ---------------------------------------------------------------------------- MCAP log and plot
 
 

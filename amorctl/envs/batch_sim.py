@@ -6,7 +6,8 @@ control step is one ``rollout`` call of ``substeps`` physics steps for PD charac
 position actuators hold the target through the substeps), or ``substeps`` calls of one physics
 step for servo characters, whose motor torques are computed between the calls by the vectorized
 servo model (``servo_torque`` on the command delayed by ``CommandDelay``). Why the rollout pool
-and not per-env ``MjData`` on Python threads: docs/environment.md.
+and not per-env ``MjData`` on Python threads: docs/environment.md. :meth:`BatchSim.snapshot` /
+:meth:`BatchSim.restore` save and restore all of it as plain arrays (checkpoints).
 
 Body poses come from frame sensors added to the model at load time (``framepos``,
 ``framequat``, ``framelinvel`` on each end effector's body frame), joint torques of PD characters
@@ -80,6 +81,18 @@ def _id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str, what: str, charact
     if i < 0:
         raise AmorError(f"character {character!r}: {what} {name!r} not found in its MJCF")
     return int(i)
+
+
+def _check_array(arrays: dict[str, np.ndarray], name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``arrays[name]``, checked to have ``shape``; AmorError naming it otherwise."""
+    if name not in arrays:
+        raise AmorError(f"simulation snapshot has no array {name!r}")
+    value = np.asarray(arrays[name])
+    if value.shape != tuple(shape):
+        raise AmorError(
+            f"simulation snapshot array {name!r} has shape {value.shape}, expected {tuple(shape)}"
+        )
+    return value
 
 
 @dataclass(frozen=True)
@@ -237,6 +250,44 @@ class BatchSim:
             mask[env_ids] = True
             order = np.argsort(env_ids)
             self.delay.reset(mask, np.asarray(joint_pos)[order])
+
+    # --- snapshots ------------------------------------------------------------------------------
+
+    #: The arrays that carry over from one control step to the next (everything else BatchSim
+    #: holds is rewritten before it is read): the physics state, the solver warm start, the
+    #: controls; servo characters add the command delay's ``delay/buffer`` and ``delay/head``.
+    SNAPSHOT_ARRAYS = ("state", "warmstart", "ctrl")
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Every env's simulation state as named arrays (copies), for checkpoints.
+
+        ``state`` [N, nstate] (``mjSTATE_FULLPHYSICS``: time, qpos, qvel, act, ...),
+        ``warmstart`` [N, nv], ``ctrl``, and for servo characters the pending commands
+        ``delay/buffer`` [k + 1, N, J] and ``delay/head`` [1]. :meth:`restore` puts them back so
+        the next :meth:`step` equals the one that followed the snapshot, bit for bit.
+        """
+        arrays = {name: getattr(self, name).copy() for name in self.SNAPSHOT_ARRAYS}
+        if self.servo:
+            arrays.update({f"delay/{k}": v for k, v in self.delay.snapshot().items()})
+        return arrays
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`snapshot` (extra keys are ignored).
+
+        Raises:
+            AmorError: an array is missing or has another shape (another character or env count).
+        """
+        for name in self.SNAPSHOT_ARRAYS:
+            _check_array(arrays, name, getattr(self, name).shape)
+        if self.servo:
+            delay = {k: _check_array(arrays, f"delay/{k}", v.shape) for k, v in self.delay.snapshot().items()}
+            try:
+                self.delay.restore(delay)
+            except ValueError as exc:
+                raise AmorError(f"simulation snapshot: {exc}") from None
+        self.state[:] = arrays["state"]
+        self.warmstart = np.array(arrays["warmstart"], dtype=np.float64)
+        self.ctrl[:] = arrays["ctrl"]
 
     # --- stepping -------------------------------------------------------------------------------
 

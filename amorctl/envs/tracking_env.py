@@ -6,7 +6,9 @@ reference-state initialization (RSI) at a random clip and time and draws ``w ~ D
 and jumps to the start of a new random clip when its clip ends, while ``w`` stays. An episode
 terminates when the character falls or its simulation diverges, and is truncated at
 ``max_episode_steps``; envs reset themselves. Episodes: docs/environment.md; observation layout
-and action: docs/observations.md; rewards: the objective set (docs/objectives.md).
+and action: docs/observations.md; rewards: the objective set (docs/objectives.md). The env is a
+:class:`amorctl.trainer.SnapshotEnv` (``get_state`` / ``set_state``), so tracking runs resume
+bit-exactly.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from amorctl.errors import AmorError
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
 from amorctl.specs import CharacterSpec, ObjectiveSetSpec
+from amorctl.trainer import State
 from amorctl.vecenv import RewardSpace
 
 ActionMode = Literal["absolute", "residual"]
@@ -265,6 +268,64 @@ class TrackingEnv:
     def close(self) -> None:
         """Release the simulation's thread pool."""
         self.sim.close()
+
+    # --- snapshots (amorctl.trainer.SnapshotEnv) ---------------------------------------------------
+
+    #: Per-env arrays the next step reads, saved under their names without the leading underscore.
+    SNAPSHOT_ARRAYS = (
+        "ref_idx", "clip_end", "clip_id", "episode_steps", "_weights", "target_prev", "target_prev2",
+        "joint_vel_prev", "ee_pos", "ee_quat", "ee_lin_vel",
+    )  # fmt: skip
+
+    def get_state(self) -> State:
+        """Everything the next :meth:`step` depends on, as arrays plus JSON-ready metadata.
+
+        Arrays: :attr:`SNAPSHOT_ARRAYS` (reference frame index, clip end and id, episode step
+        counter, weights, the previous two PD targets, previous joint velocities, end-effector
+        pose and velocity) and the simulation's under ``sim/`` (:meth:`BatchSim.snapshot`: full
+        MuJoCo physics state, solver warm start, controls, servo command delay and its head).
+        Meta: the generator state (``rng``, numpy's ``bit_generator.state``), ``diverged_total``
+        and the clip selection (``valid_clips``, ``env_clips``). Everything else is fixed by the
+        constructor arguments, which a resumed run repeats. Checkpoints store it as safetensors +
+        JSON; :meth:`set_state` restores it, after which the env steps bit-identically.
+        """
+        arrays = {name.lstrip("_"): getattr(self, name).copy() for name in self.SNAPSHOT_ARRAYS}
+        arrays.update({f"sim/{k}": v for k, v in self.sim.snapshot().items()})
+        meta = {
+            "rng": self._rng.bit_generator.state,
+            "diverged_total": int(self.diverged_total),
+            "valid_clips": [int(c) for c in self.valid_clips],
+            "env_clips": None if self.env_clips is None else [int(c) for c in self.env_clips],
+        }
+        return State(arrays, meta)
+
+    def set_state(self, state: State) -> None:
+        """Restore :meth:`get_state` (taken from an env built with the same arguments).
+
+        Raises:
+            AmorError: an array is missing or of another shape (another character, env count or
+                objective set), or the clip selection does not fit the library.
+        """
+        restored = {}
+        for name in self.SNAPSHOT_ARRAYS:
+            key, current = name.lstrip("_"), getattr(self, name)
+            if key not in state.arrays:
+                raise AmorError(f"env snapshot has no array {key!r}")
+            value = np.asarray(state.arrays[key])
+            if value.shape != current.shape:
+                raise AmorError(
+                    f"env snapshot array {key!r} has shape {value.shape}, expected {current.shape}"
+                )
+            restored[name] = np.array(value, dtype=current.dtype)
+        meta = state.meta
+        self.select_clips(meta.get("valid_clips"), meta.get("env_clips"))
+        self.sim.restore({k[len("sim/") :]: v for k, v in state.arrays.items() if k.startswith("sim/")})
+        for name, value in restored.items():
+            setattr(self, name, value)
+        rng = np.random.default_rng()
+        rng.bit_generator.state = meta["rng"]
+        self._rng = rng
+        self.diverged_total = int(meta["diverged_total"])
 
     # --- internals --------------------------------------------------------------------------------
 

@@ -117,3 +117,24 @@ class CommandDelay:
         """
         mask = np.asarray(env_mask, dtype=bool)
         self.buffer[:, mask] = value
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The pending commands as arrays (for checkpoints): ``buffer`` ``[k + 1, N, J]`` float64
+        and ``head`` ``[1]`` int64, the slot the next :meth:`push` writes. Copies."""
+        return {"buffer": self.buffer.copy(), "head": np.array([self._head], dtype=np.int64)}
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Restore :meth:`snapshot`: the next :meth:`push` returns what it would have then.
+
+        Raises:
+            ValueError: the buffer's shape differs (another latency, env or joint count) or the
+                head is out of range.
+        """
+        buffer = np.asarray(arrays["buffer"])
+        head = int(np.asarray(arrays["head"]).reshape(-1)[0])
+        if buffer.shape != self.buffer.shape:
+            raise ValueError(f"command delay buffer has shape {buffer.shape}, expected {self.buffer.shape}")
+        if not 0 <= head <= self.k:
+            raise ValueError(f"command delay head {head} out of range [0, {self.k}]")
+        self.buffer[:] = buffer
+        self._head = head
