@@ -61,70 +61,13 @@ class StepRecord:
     ref_body_quat: np.ndarray
 
 
-class PinnedMotion:
-    """Wrap a :class:`~amorctl.envs.tracking_env.TrackingEnv` so it tracks one clip from its start.
-
-    The env draws its clips from ``valid_clips``, which is set to the one clip; every (re)start
-    (``reset``, and an env that ended an episode in ``step``) is moved from the env's random
-    reference-state-initialization frame to the clip's first frame, in the clip's reference state.
-    When the clip ends, the reference starts it over (the env's own clip switch). Everything else
-    is the wrapped env's, and ``.env`` is the wrapped env (so :func:`amorctl.rollout.tracking_env`
-    finds it).
-    """
-
-    def __init__(self, env: Any, clip_index: int) -> None:
-        self.env = env
-        self.clip_index = clip_index
-        env.valid_clips = np.array([clip_index])
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.env, name)
-
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset, then start every env at the clip's first frame. Returns obs [N, D], info."""
-        _, info = self.env.reset(seed=seed)
-        self._to_clip_start(np.arange(self.env.num_envs))
-        return self.env._observe(), info
-
-    def step(
-        self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """The env's step; envs whose episode ended restart at the clip's first frame."""
-        obs, rewards, terminated, truncated, info = self.env.step(actions)
-        ended = np.flatnonzero(np.asarray(terminated) | np.asarray(truncated))
-        if len(ended):
-            self._to_clip_start(ended)
-            obs = np.array(obs, copy=True)
-            obs[ended] = self.env._observe(ids=ended)
-        return obs, rewards, terminated, truncated, info
-
-    def _to_clip_start(self, ids: np.ndarray) -> None:
-        """Put envs ``ids`` [k] at the first frame of the clip, in its reference state."""
-        env, lib, k = self.env, self.env.library, self.clip_index
-        f = int(lib.starts[k])
-        fs = np.full(len(ids), f)
-        env.ref_idx[ids] = f
-        env.clip_id[ids] = k
-        env.clip_end[ids] = f + int(lib.lengths[k])
-        env.sim.set_state(
-            ids, lib.root_pos[fs], lib.root_quat[fs], lib.root_lin_vel[fs], lib.root_ang_vel[fs],
-            lib.joint_pos[fs], lib.joint_vel[fs],
-        )  # fmt: skip
-        env.ee_pos[ids] = lib.ee_pos[f]
-        env.ee_quat[ids] = lib.ee_quat[f]
-        env.ee_lin_vel[ids] = lib.ee_lin_vel[f]
-        env.target_prev[ids] = lib.joint_pos[f]
-        env.target_prev2[ids] = lib.joint_pos[f]
-        env.joint_vel_prev[ids] = lib.joint_vel[f]
-        env.episode_steps[ids] = 0
-
-
 class TuneEnv:
     """One environment of a trained run, pinned to one motion, stepped with caller-chosen weights.
 
-    The run's env is rebuilt from its resolved config with one env and no fixed weights; tracking
-    envs are wrapped in :class:`PinnedMotion` (``pinned``), and everything in
-    :class:`FixedWeights` (``env``). :func:`run_tune` rolls ``pinned`` out with
+    The run's env (``base``) is rebuilt from its resolved config with one env and no fixed
+    weights; a tracking env is restricted to the chosen clip, starting at its first frame
+    (``select_clips(..., from_start=True)``), and wrapped in :class:`FixedWeights` (``env``).
+    :func:`run_tune` rolls ``base`` out with
     :func:`amorctl.rollout.rollout`; the live page steps it one control step at a time with
     :meth:`step`, which puts the weights into the observation the policy acts on, so a change
     reaches the policy at the very next control step.
@@ -156,7 +99,7 @@ class TuneEnv:
         self.tracking = tracking_env(base) is not None
         self.dt = float(base.dt) if self.tracking else 1.0 / TOY_CONTROL_HZ
         self.motions: tuple[str, ...] = tuple(c.name for c in base.library.clips) if self.tracking else ()
-        self.pinned: Any = base
+        self.clip_index = 0
         self.env = FixedWeights(base, np.full(self.m, 1.0 / self.m))
         if self.tracking:
             model = base.sim.model
@@ -193,8 +136,9 @@ class TuneEnv:
         if lib.clips[k].num_frames < 2:
             raise AmorError(f"motion {lib.clips[k].name!r} has fewer than 2 frames")
         self.motion = lib.clips[k].name
-        self.pinned = PinnedMotion(self.base, k)
-        self.env = FixedWeights(self.pinned, self.env.weights[0])
+        self.clip_index = k
+        self.base.select_clips([k], from_start=True)
+        self.env = FixedWeights(self.base, self.env.weights[0])
         self.restart()
 
     @property
@@ -202,7 +146,7 @@ class TuneEnv:
         """Duration of the pinned clip (tracking), else of the run's episode, in seconds."""
         if self.tracking:
             lib = self.base.library
-            return float(lib.clip_duration(lib.clips[self.pinned.clip_index]))
+            return float(lib.clip_duration(lib.clips[self.clip_index]))
         return float(self.config.env.episode_seconds)
 
     def restart(self) -> None:
@@ -386,7 +330,7 @@ def run_tune(
 ) -> TuneRollout:
     """Roll the pinned motion out from its start under constant weights or a schedule.
 
-    The stepping is :func:`amorctl.rollout.rollout` on ``tenv.pinned`` (one env); this adds the
+    The stepping is :func:`amorctl.rollout.rollout` on ``tenv.base`` (one env); this adds the
     world body poses of the character and of the reference, from the recorded ``qpos`` and
     reference frames, for the MCAP log and the plot.
 
@@ -413,7 +357,7 @@ def run_tune(
             raise AmorError(f"weights have shape {weights.shape}; expected ({tenv.m},)")
     ro = rollout(
         tenv.policy,
-        tenv.pinned,
+        tenv.base,
         weights,
         episodes=1 if stop_on_fall else n_steps + 1,
         seed=tenv.seed,

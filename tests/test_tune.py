@@ -149,9 +149,8 @@ def test_a_schedule_switch_changes_the_policys_behaviour_after_the_switch(
 
 def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(tracking_run: Path) -> None:
     # On a tracking run, the smooth weight reaches the policy exactly from the switch on, and the
-    # action-rate measure the smooth objective penalizes is computed per step. (Whether a policy
-    # trained for seconds then acts smoother is not something it has learnt; docs/tune.md shows
-    # the effect on a trained biped20 run.)
+    # action-rate measure the smooth objective penalizes is computed per step. (A policy trained
+    # for seconds has not learnt to act smoother; the toy-smooth test below checks that effect.)
     tenv = TuneEnv(tracking_run, "sway1")
     assert tenv.motion == "sway1" and tenv.names == TRACKING7
     from amorctl.schedule import parse_schedule
@@ -177,7 +176,7 @@ def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(trackin
     assert rate[0] == 0.0
     # the rollout starts at the clip's first frame in the reference state
     lib = tenv.base.library
-    first = int(lib.starts[tenv.pinned.clip_index])
+    first = int(lib.starts[tenv.clip_index])
     np.testing.assert_allclose(rollout.ref_joint_pos[0], lib.joint_pos[first + 1], atol=1e-6)
 
 

@@ -14,7 +14,7 @@ from rich.table import Table
 from rich.text import Text
 
 from amorctl.cli.output import console, print_json
-from amorctl.config import PRESETS, TrainConfig, load_config, load_preset, merge
+from amorctl.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
 from amorctl.errors import AmorError
 from amorctl.runner import load_run_config, train_run
 from amorctl.vecenv import VectorEnv
@@ -192,8 +192,9 @@ def train(
     }
     if env is not None:
         kind, _, gym_id = env.partition(":")
-        if kind not in ("tracking", "toy", "gym") or (kind == "gym") != bool(gym_id):
-            raise AmorError(f"--env {env!r}: expected tracking, toy or gym:<id>")
+        if kind not in ENV_KINDS or (kind == "gym") != bool(gym_id):
+            choices = ", ".join(k for k in ENV_KINDS if k != "gym")
+            raise AmorError(f"--env {env!r}: expected {choices} or gym:<id>")
         env_section.update(kind=kind, gym_id=gym_id or None)
     overrides = {
         "run": {"backend": backend, "seed": seed, "iterations": iterations},

@@ -251,10 +251,18 @@ class TrackingEnv:
         }
         return obs, rewards, terminated, truncated, info
 
-    def select_clips(self, clips: Sequence[int] | None = None, env_clips: np.ndarray | None = None) -> None:
+    def select_clips(
+        self,
+        clips: Sequence[int] | None = None,
+        env_clips: np.ndarray | None = None,
+        from_start: bool = False,
+    ) -> None:
         """Restrict which clips episodes use from the next reset on (see ``clips`` / ``env_clips``
-        in the class docstring); both None restores every clip. AmorError for a bad index."""
+        in the class docstring); both None restores every clip. ``from_start``: episodes begin at
+        the clip's first frame instead of a random one (evaluation, tuning). AmorError for a bad
+        index."""
         lib = self.library
+        self.from_start = bool(from_start)
         self.valid_clips = (
             self.all_valid_clips if clips is None else _check_clips(np.asarray(clips, np.int64).ravel(), lib)
         )
@@ -296,6 +304,7 @@ class TrackingEnv:
             "diverged_total": int(self.diverged_total),
             "valid_clips": [int(c) for c in self.valid_clips],
             "env_clips": None if self.env_clips is None else [int(c) for c in self.env_clips],
+            "from_start": self.from_start,
         }
         return State(arrays, meta)
 
@@ -318,7 +327,7 @@ class TrackingEnv:
                 )
             restored[name] = np.array(value, dtype=current.dtype)
         meta = state.meta
-        self.select_clips(meta.get("valid_clips"), meta.get("env_clips"))
+        self.select_clips(meta.get("valid_clips"), meta.get("env_clips"), meta.get("from_start", False))
         self.sim.restore({k[len("sim/") :]: v for k, v in state.arrays.items() if k.startswith("sim/")})
         for name, value in restored.items():
             setattr(self, name, value)
@@ -343,7 +352,7 @@ class TrackingEnv:
 
     def _reset_envs(self, ids: np.ndarray) -> None:
         """RSI and fresh weights for envs ``ids`` [k]."""
-        self._start_clips(ids, at_start=False)
+        self._start_clips(ids, at_start=self.from_start)
         f = self.ref_idx[ids]
         lib = self.library
         self.sim.set_state(
