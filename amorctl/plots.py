@@ -1,4 +1,5 @@
-"""Figures of ``amorctl pareto`` (the paper's Fig. 4) and ``amorctl evaluate --sweep`` (Fig. 6).
+"""Figures of ``amorctl pareto`` (the paper's Fig. 4), ``amorctl evaluate --sweep`` (Fig. 6) and
+``amorctl tune`` (w(t) over the rewards, the teaser / Fig. 7).
 
 matplotlib with the non-interactive Agg backend (works headless); files are written atomically.
 """
@@ -6,11 +7,14 @@ matplotlib with the non-interactive Agg backend (works headless); files are writ
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from amorctl.io import atomic_path
+
+if TYPE_CHECKING:
+    from amorctl.tune import TuneRollout
 
 
 def _pyplot() -> Any:
@@ -118,4 +122,36 @@ def sweep_figure(sweep: Any, path: Path) -> None:
         f"{sweep.objective}: Spearman ρ = {sweep.spearman_rho:.3f} (p = {sweep.spearman_p:.2g})", fontsize=10
     )
     _save(fig, [path])
+    plt.close(fig)
+
+
+def plot_rollout(rollout: TuneRollout, path: str | Path, title: str = "") -> None:
+    """PNG of w(t) as stacked areas (top) over the per-objective rewards r_i(t) (bottom), atomically.
+
+    The paper's teaser / Fig. 7 style: the colour of an objective is the same in both panels, so
+    a reader sees which reward moves when its weight does.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = rollout.objective_names
+    colors = plt.get_cmap("tab10")(np.arange(len(names)) % 10)
+    fig, (ax_w, ax_r) = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True, height_ratios=[1, 1.4])
+    t = rollout.times
+    ax_w.stackplot(t, rollout.weights.T, labels=list(names), colors=colors, step="post", alpha=0.9)
+    ax_w.set_ylim(0, 1)
+    ax_w.set_ylabel("weights w(t)")
+    ax_w.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8, frameon=False)
+    for i, name in enumerate(names):
+        ax_r.plot(t, rollout.rewards[:, i], color=colors[i], lw=1.2, label=name)
+    ax_r.set_ylabel("reward r_i(t)")
+    ax_r.set_xlabel("time (s)")
+    for tt in t[rollout.terminated]:
+        ax_r.axvline(tt, color="k", ls=":", lw=1)
+    ax_w.set_title(title or f"amorctl tune — {rollout.motion or 'run'}")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)

@@ -21,8 +21,8 @@ import torch
 from amorctl.cli.main import main
 from amorctl.config import TrainConfig, override
 from amorctl.errors import AmorError
-from amorctl.schedule import dump_schedule, load_schedule
-from amorctl.tune import (
+from amorctl.plots import plot_rollout
+from amorctl.rollout_mcap import (
     TOPIC_ACTIONS,
     TOPIC_JOINTS,
     TOPIC_REF_JOINTS,
@@ -30,12 +30,11 @@ from amorctl.tune import (
     TOPIC_SCENE,
     TOPIC_TF,
     TOPIC_WEIGHTS,
-    TuneEnv,
-    plot_rollout,
     read_rollout_mcap,
-    run_tune,
     write_rollout_mcap,
 )
+from amorctl.schedule import dump_schedule, load_schedule
+from amorctl.tune import TuneEnv, run_tune
 
 torch.set_num_threads(1)
 

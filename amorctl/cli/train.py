@@ -176,7 +176,9 @@ def train(
     ] = None,
     env: Annotated[
         str | None,
-        typer.Option("--env", help="tracking (default) | toy | gym:<Gymnasium id> with a vector reward."),
+        typer.Option(
+            "--env", help="tracking (default) | toy | toy-smooth | gym:<Gymnasium id> with a vector reward."
+        ),
     ] = None,
     num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
     json_out: Annotated[

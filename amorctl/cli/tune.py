@@ -89,8 +89,10 @@ def tune(
 ) -> None:
     """Run the policy with weights chosen after training: constant (--weights), over time
     (--schedule), or live in the browser (--live). Prints per-objective returns."""
+    from amorctl.plots import plot_rollout
+    from amorctl.rollout_mcap import write_rollout_mcap
     from amorctl.schedule import load_schedule
-    from amorctl.tune import TuneEnv, plot_rollout, run_tune, write_rollout_mcap
+    from amorctl.tune import TuneEnv, run_tune
     from amorctl.weights import parse_weights
 
     if live:
