@@ -16,6 +16,7 @@ so runs on it resume bit-exactly. Used by tests and as ``[env] kind = "toy"``.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -35,23 +36,28 @@ TOY_REWARD_SPACE = RewardSpace(
 )
 
 
-class ToyTradeoffEnv:
-    """N copies of the toy task. obs = [s, s_prev, t / max_steps, w0, w1] (obs_dim 5), action_dim 1."""
+class _ToyEnv(ABC):
+    """What both toy envs share: N copies of a 1-D task whose state is a target ``s`` and one more
+    per-env number (``second``), a step counter, the episode weights, and a seeded generator.
+
+    Subclasses set ``second`` (the attribute name), ``reward_space`` and implement ``_start_task``
+    (new target for the envs in a mask) and ``_transition(a) -> rewards [N, 2]``.
+    """
 
     obs_dim = 5
     action_dim = 1
-    reward_space = TOY_REWARD_SPACE
+    action_limit = 3.0
+    second = "s_prev"
 
-    def __init__(self, num_envs: int, max_steps: int = 20, hazard: float = 0.01, seed: int = 0) -> None:
+    def _init_common(self, num_envs: int, max_steps: int, hazard: float, seed: int) -> None:
         self.num_envs = num_envs
         self.max_steps = max_steps
         self.hazard = hazard
         self.rng = np.random.default_rng(seed)
-        n = num_envs
-        self.s = np.zeros(n)
-        self.s_prev = np.zeros(n)
-        self.t = np.zeros(n, dtype=np.int64)
-        self._w = np.full((n, 2), 0.5, dtype=np.float32)
+        self.s = np.zeros(num_envs)
+        setattr(self, self.second, np.zeros(num_envs))
+        self.t = np.zeros(num_envs, dtype=np.int64)
+        self._w = np.full((num_envs, 2), 0.5, dtype=np.float32)
 
     @property
     def weights(self) -> np.ndarray:
@@ -59,17 +65,15 @@ class ToyTradeoffEnv:
         return self._w.copy()
 
     def _obs(self) -> np.ndarray:
+        """[N, 5] float32: s, the second number, t / max_steps, w0, w1."""
         phase = self.t / self.max_steps
-        return np.concatenate([np.stack([self.s, self.s_prev, phase], axis=1), self._w], axis=1).astype(
-            np.float32
-        )
+        columns = np.stack([self.s, getattr(self, self.second), phase], axis=1)
+        return np.concatenate([columns, self._w], axis=1).astype(np.float32)
 
     def _start(self, mask: np.ndarray) -> None:
-        k = int(mask.sum())
-        self.s[mask] = self.rng.uniform(-0.5, 0.5, size=k)
-        self.s_prev[mask] = self.s[mask]
+        self._start_task(mask)
         self.t[mask] = 0
-        self._w[mask] = sample_dirichlet(self.rng, k, 2)
+        self._w[mask] = sample_dirichlet(self.rng, int(mask.sum()), 2)
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start every env anew (reseeding the env's generator when ``seed`` is given)."""
@@ -81,12 +85,10 @@ class ToyTradeoffEnv:
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Actions [N, 1] (clipped to [-3, 3]); rewards [N, 2]; auto-resets ended episodes."""
-        a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs), -3.0, 3.0)
-        targets = np.stack([1.0 + self.s, -1.0 + self.s], axis=1)
-        rewards = np.exp(-((a[:, None] - targets) ** 2)).astype(np.float32)
-        self.s_prev = self.s.copy()
-        self.s = np.clip(0.95 * self.s + 0.05 * self.rng.normal(size=self.num_envs), -1.0, 1.0)
+        """Actions [N, 1] (clipped to ±action_limit); rewards [N, 2]; auto-resets ended episodes."""
+        lim = self.action_limit
+        a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs), -lim, lim)
+        rewards = self._transition(a).astype(np.float32)
         self.t += 1
         terminated = self.rng.random(self.num_envs) < self.hazard
         truncated = (self.t >= self.max_steps) & ~terminated
@@ -97,18 +99,47 @@ class ToyTradeoffEnv:
         return self._obs(), rewards, terminated, truncated, {"final_obs": final_obs}
 
     def get_state(self) -> State:
-        """Everything the next step depends on: generator state, s, s_prev, t, w."""
-        arrays = {"s": self.s.copy(), "s_prev": self.s_prev.copy(), "t": self.t.copy(), "w": self._w.copy()}
-        return State(arrays, {"rng": self.rng.bit_generator.state})
+        """Everything the next step depends on: generator state, s, the second number, t, w."""
+        arrays = {"s": self.s, self.second: getattr(self, self.second), "t": self.t, "w": self._w}
+        return State({k: v.copy() for k, v in arrays.items()}, {"rng": self.rng.bit_generator.state})
 
     def set_state(self, state: State) -> None:
         """Restore :meth:`get_state`."""
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = state.meta["rng"]
         self.s = state.arrays["s"].copy()
-        self.s_prev = state.arrays["s_prev"].copy()
+        setattr(self, self.second, state.arrays[self.second].copy())
         self.t = state.arrays["t"].copy()
         self._w = state.arrays["w"].copy()
+
+    @abstractmethod
+    def _start_task(self, mask: np.ndarray) -> None:
+        """Draw new targets (and reset the second number) for the envs where ``mask`` [N] is true."""
+
+    @abstractmethod
+    def _transition(self, a: np.ndarray) -> np.ndarray:
+        """Rewards [N, 2] of actions ``a`` [N]; advances the targets."""
+
+
+class ToyTradeoffEnv(_ToyEnv):
+    """N copies of the toy task. obs = [s, s_prev, t / max_steps, w0, w1] (obs_dim 5), action_dim 1."""
+
+    reward_space = TOY_REWARD_SPACE
+    second = "s_prev"
+
+    def __init__(self, num_envs: int, max_steps: int = 20, hazard: float = 0.01, seed: int = 0) -> None:
+        self._init_common(num_envs, max_steps, hazard, seed)
+
+    def _start_task(self, mask: np.ndarray) -> None:
+        self.s[mask] = self.rng.uniform(-0.5, 0.5, size=int(mask.sum()))
+        self.s_prev[mask] = self.s[mask]
+
+    def _transition(self, a: np.ndarray) -> np.ndarray:
+        targets = np.stack([1.0 + self.s, -1.0 + self.s], axis=1)
+        rewards = np.exp(-((a[:, None] - targets) ** 2))
+        self.s_prev = self.s.copy()
+        self.s = np.clip(0.95 * self.s + 0.05 * self.rng.normal(size=self.num_envs), -1.0, 1.0)
+        return rewards
 
 
 # ---------------------------------------------------------------------------- toy-smooth
@@ -124,7 +155,7 @@ TOY_SMOOTH_REWARD_SPACE = RewardSpace(
 )
 
 
-class ToySmoothEnv:
+class ToySmoothEnv(_ToyEnv):
     """N copies of a tracking-versus-smoothness toy task (``[env] kind = "toy-smooth"``).
 
     Each step the agent picks one number ``a`` (clipped to [-2, 2]). The target ``s`` is a random
@@ -141,10 +172,9 @@ class ToySmoothEnv:
     Seeded and snapshotable like :class:`ToyTradeoffEnv`.
     """
 
-    obs_dim = 5
-    action_dim = 1
     reward_space = TOY_SMOOTH_REWARD_SPACE
     action_limit = 2.0
+    second = "a_prev"
 
     def __init__(
         self,
@@ -155,76 +185,21 @@ class ToySmoothEnv:
         hazard: float = 0.0,
         seed: int = 0,
     ) -> None:
-        self.num_envs = num_envs
-        self.width = width
-        self.max_steps = max_steps
         self.jump = jump
-        self.hazard = hazard
-        self.rng = np.random.default_rng(seed)
-        n = num_envs
-        self.s = np.zeros(n)
-        self.a_prev = np.zeros(n)
-        self.t = np.zeros(n, dtype=np.int64)
-        self._w = np.full((n, 2), 0.5, dtype=np.float32)
+        self.width = width
+        self._init_common(num_envs, max_steps, hazard, seed)
 
-    @property
-    def weights(self) -> np.ndarray:
-        """[N, 2] float32: the weights of each env's current episode."""
-        return self._w.copy()
-
-    def _obs(self) -> np.ndarray:
-        phase = self.t / self.max_steps
-        return np.concatenate([np.stack([self.s, self.a_prev, phase], axis=1), self._w], axis=1).astype(
-            np.float32
-        )
-
-    def _start(self, mask: np.ndarray) -> None:
+    def _start_task(self, mask: np.ndarray) -> None:
         k = int(mask.sum())
         sign = np.where(self.rng.random(k) < 0.5, -1.0, 1.0)
         self.s[mask] = sign * self.rng.uniform(0.25, 1.0, size=k)
         self.a_prev[mask] = 0.0
-        self.t[mask] = 0
-        self._w[mask] = sample_dirichlet(self.rng, k, 2)
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start every env anew (reseeding the env's generator when ``seed`` is given)."""
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
-        self._start(np.ones(self.num_envs, dtype=bool))
-        return self._obs(), {}
-
-    def step(
-        self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Actions [N, 1] (clipped to [-2, 2]); rewards [N, 2]; auto-resets ended episodes."""
-        lim = self.action_limit
-        a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs), -lim, lim)
+    def _transition(self, a: np.ndarray) -> np.ndarray:
         track = np.exp(-(((a - self.s) / self.width) ** 2))
         smooth = -((a - self.a_prev) ** 2)
-        rewards = np.stack([track, smooth], axis=1).astype(np.float32)
         self.a_prev = a
         jumps = self.rng.random(self.num_envs) < self.jump
         levels = -np.sign(self.s) * self.rng.uniform(0.25, 1.0, size=self.num_envs)  # across 0
         self.s = np.where(jumps, levels, self.s)
-        self.t += 1
-        terminated = self.rng.random(self.num_envs) < self.hazard
-        truncated = (self.t >= self.max_steps) & ~terminated
-        final_obs = self._obs()
-        ended = terminated | truncated
-        if ended.any():
-            self._start(ended)
-        return self._obs(), rewards, terminated, truncated, {"final_obs": final_obs}
-
-    def get_state(self) -> State:
-        """Everything the next step depends on: generator state, s, a_prev, t, w."""
-        arrays = {"s": self.s.copy(), "a_prev": self.a_prev.copy(), "t": self.t.copy(), "w": self._w.copy()}
-        return State(arrays, {"rng": self.rng.bit_generator.state})
-
-    def set_state(self, state: State) -> None:
-        """Restore :meth:`get_state`."""
-        self.rng = np.random.default_rng()
-        self.rng.bit_generator.state = state.meta["rng"]
-        self.s = state.arrays["s"].copy()
-        self.a_prev = state.arrays["a_prev"].copy()
-        self.t = state.arrays["t"].copy()
-        self._w = state.arrays["w"].copy()
+        return np.stack([track, smooth], axis=1)

@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from amorctl.envs.tracking_inputs import frame_features
 from amorctl.geometry import (
-    heading_quat_inv,
     quat_conj,
     quat_from_rotvec,
     quat_mul,
     quat_normalize,
-    quat_rotate,
-    quat_to_6d,
     quat_to_rotvec,
 )
 from amorctl.motion.kinematics import CharacterKinematics
@@ -78,34 +76,14 @@ def integrate_rotation(q0: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
     return np.stack(out)
 
 
-def frame_vectors(
-    root_pos: np.ndarray,
-    root_quat: np.ndarray,
-    root_lin_vel: np.ndarray,
-    root_ang_vel: np.ndarray,
-    joint_pos: np.ndarray,
-    joint_vel: np.ndarray,
-    ee_pos: np.ndarray,
-    ee_quat: np.ndarray,
-    ee_lin_vel: np.ndarray,
-) -> np.ndarray:
-    """The paper's m_t from world-frame state; every input has a leading [T]. Returns [T, D]."""
-    num_frames, num_ee = ee_pos.shape[:2]
-    hq = heading_quat_inv(root_quat)  # [T, 4]: world -> heading frame
-    hq_e = np.broadcast_to(hq[:, None], (num_frames, num_ee, 4))
-    parts = [
-        root_pos[:, 2:3],
-        quat_to_6d(quat_mul(hq, root_quat)),
-        quat_rotate(hq, root_lin_vel),
-        quat_rotate(hq, root_ang_vel),
-        joint_pos,
-        joint_vel,
-        np.concatenate(
-            [quat_rotate(hq_e, ee_pos - root_pos[:, None]), quat_to_6d(quat_mul(hq_e, ee_quat))], axis=-1
-        ).reshape(num_frames, -1),
-        quat_rotate(hq_e, ee_lin_vel - root_lin_vel[:, None]).reshape(num_frames, -1),
-    ]
-    return np.concatenate(parts, axis=-1)
+def frame_vectors(**state: np.ndarray) -> np.ndarray:
+    """The paper's m_t [T, D] from world-frame state arrays with a leading [T].
+
+    The one implementation is :func:`amorctl.envs.tracking_inputs.frame_features` (the env computes
+    the simulated character's frames with it every step), so datasets and observations agree
+    exactly; this name keeps the keyword call used by the motion code.
+    """
+    return frame_features(**state)
 
 
 def clip_arrays(motion: CharacterMotion, kin: CharacterKinematics, fps: float) -> dict[str, np.ndarray]:
