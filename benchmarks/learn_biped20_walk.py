@@ -69,27 +69,39 @@ def save_subset(lib: MotionLibrary, path: Path) -> Path:
     return path
 
 
-def evaluate(env: TrackingEnv, policy, steps: int) -> tuple[float, float]:
-    """(survival fraction, joint MAE in degrees) of each env's first episode under ``policy``."""
+def evaluate(env: TrackingEnv, policy, steps: int) -> tuple[float, np.ndarray]:
+    """Survival fraction and per-step joint errors of each env's first episode under ``policy``.
+
+    Returns:
+        survival: fraction of envs whose first episode reaches the time limit.
+        errors: [steps, N] mean |q - q_ref| over joints in radians, NaN where the env's first
+            episode has ended (or its reference just switched clips).
+    Every call resets with the same seed, so two policies start from the same states.
+    """
     obs, _ = env.reset(seed=12345)
     n = env.num_envs
     active = np.ones(n, dtype=bool)  # still in its first episode
     survived = np.zeros(n, dtype=bool)
-    err_sum, err_count = 0.0, 0
-    for _ in range(steps):
+    errors = np.full((steps, n), np.nan)
+    for t in range(steps):
         obs, _, terminated, truncated, info = env.step(policy(obs))
         ended = terminated | truncated
         ok = active & ~ended & ~info["clip_switched"]
         if ok.any():
             q = env.sim.joint_pos()[ok]
             q_ref = env.library.joint_pos[env.ref_idx[ok]]
-            err_sum += float(np.abs(q - q_ref).sum())
-            err_count += int(q.size)
+            errors[t, ok] = np.abs(q - q_ref).mean(axis=1)
         survived |= active & truncated
         active &= ~ended
         if not active.any():
             break
-    return float(survived.mean()), math.degrees(err_sum / max(err_count, 1))
+    return float(survived.mean()), errors
+
+
+def mae_degrees(errors: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Mean of the finite per-step errors [steps, N] (optionally only where ``mask``), in degrees."""
+    keep = np.isfinite(errors) if mask is None else np.isfinite(errors) & mask
+    return math.degrees(float(errors[keep].mean())) if keep.any() else math.nan
 
 
 def main() -> None:
@@ -173,15 +185,23 @@ def main() -> None:
     )
     trainer = TorchCpuBackend().make_trainer(make_env(override(config, env__num_envs=4)), config)
     trainer.load_state_dict(latest_checkpoint(args.out).trainer)
-    surv, mae = evaluate(env, lambda o: trainer.act(o), steps)
+    surv, err_policy = evaluate(env, lambda o: trainer.act(o), steps)
 
     def replay(_obs: np.ndarray) -> np.ndarray:
         targets = env.library.joint_pos[env.ref_idx + 1]
         return targets if env.action_mode == "absolute" else np.zeros_like(targets)
 
-    surv_open, mae_open = evaluate(env, replay, steps)
+    surv_open, err_open = evaluate(env, replay, steps)
+    mae, mae_open = mae_degrees(err_policy), mae_degrees(err_open)
+    # like for like: the policy's error on the same steps (same starts) on which the replay is up
+    mae_same = mae_degrees(err_policy, np.isfinite(err_open))
+    mae_open_same = mae_degrees(err_open, np.isfinite(err_policy))
     print(f"policy (uniform w):  survival over 10 s: {100 * surv:.1f}%   joint MAE: {mae:.2f} deg")
     print(f"open-loop replay:    survival over 10 s: {100 * surv_open:.1f}%   joint MAE: {mae_open:.2f} deg")
+    print(
+        f"same steps (both up, same starts): policy {mae_same:.2f} deg, open loop {mae_open_same:.2f} deg "
+        f"over {int((np.isfinite(err_open) & np.isfinite(err_policy)).sum())} env steps"
+    )
 
     # --- learning curve
     rows = list(csv.DictReader((args.out / "metrics.csv").open()))
