@@ -47,6 +47,16 @@ from amorctl.vecenv import VectorEnv
 
 EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
 LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
+#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
+EPISODE_STATS = (
+    "ep_return",
+    "ep_scalar",
+    "ep_length",
+    "recent_return",
+    "recent_scalar",
+    "recent_length",
+    "recent_survived",
+)
 
 
 @dataclass
@@ -391,15 +401,7 @@ class MOPPOTrainer:
                 arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
         arrays["rng.torch"] = self.generator.get_state().numpy().copy()
         arrays["obs"] = self.obs.numpy().copy()
-        for key in (
-            "ep_return",
-            "ep_scalar",
-            "ep_length",
-            "recent_return",
-            "recent_scalar",
-            "recent_length",
-            "recent_survived",
-        ):
+        for key in EPISODE_STATS:
             arrays[f"episodes.{key}"] = getattr(self, key).numpy().copy()
         meta = {
             "iteration": self.iteration_count,
@@ -448,15 +450,7 @@ class MOPPOTrainer:
             )
             self.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
             self.obs = torch.from_numpy(arrays["obs"].copy())
-            for key in (
-                "ep_return",
-                "ep_scalar",
-                "ep_length",
-                "recent_return",
-                "recent_scalar",
-                "recent_length",
-                "recent_survived",
-            ):
+            for key in EPISODE_STATS:
                 setattr(self, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
         except (KeyError, RuntimeError, ValueError) as exc:
             raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None
