@@ -41,6 +41,8 @@ from amorctl.plugins.backends.torch_cpu.networks import (
     RunningNormalizer,
     gaussian_entropy,
     gaussian_log_prob,
+    load_modules,
+    modules_to_arrays,
 )
 from amorctl.trainer import State
 from amorctl.vecenv import VectorEnv
@@ -385,16 +387,13 @@ class MOPPOTrainer:
         return metrics
 
     # ------------------------------------------------------------------ checkpoints
+    def _modules(self) -> dict[str, nn.Module]:
+        """The networks and the normalizer by checkpoint prefix."""
+        return {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}
+
     def state_dict(self) -> State:
         """Weights, normalizer, Adam state, RNG, current observations and episode statistics."""
-        arrays: dict[str, np.ndarray] = {}
-        for prefix, module in (
-            ("actor", self.actor),
-            ("critic", self.critic),
-            ("normalizer", self.normalizer),
-        ):
-            for key, tensor in module.state_dict().items():
-                arrays[f"{prefix}.{key}"] = tensor.detach().cpu().numpy().copy()
+        arrays = modules_to_arrays(self._modules())
         optim = self.optimizer.state_dict()
         for index, slot in optim["state"].items():
             for key, tensor in slot.items():
@@ -429,17 +428,7 @@ class MOPPOTrainer:
             if meta.get(key) != value:
                 raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
         try:
-            for prefix, module in (
-                ("actor", self.actor),
-                ("critic", self.critic),
-                ("normalizer", self.normalizer),
-            ):
-                tensors = {
-                    k[len(prefix) + 1 :]: torch.from_numpy(v.copy())
-                    for k, v in arrays.items()
-                    if k.startswith(prefix + ".")
-                }
-                module.load_state_dict(tensors, strict=True)
+            load_modules(self._modules(), arrays)
             optim_state: dict[int, dict[str, torch.Tensor]] = {}
             for index, keys in meta["optimizer_state_keys"].items():
                 optim_state[int(index)] = {

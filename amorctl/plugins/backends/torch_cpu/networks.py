@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -105,3 +106,22 @@ class RunningNormalizer(nn.Module):
         std = (torch.sqrt(self.var) + self.eps).to(torch.float32)
         y = (x - self.mean.to(torch.float32)) / std
         return torch.clamp(y, -self.clip, self.clip)
+
+
+def modules_to_arrays(modules: dict[str, nn.Module]) -> dict[str, np.ndarray]:
+    """Flatten modules' parameters and buffers into ``{"<name>.<key>": array}`` (safetensors-ready)."""
+    return {
+        f"{name}.{key}": tensor.detach().cpu().numpy().copy()
+        for name, module in modules.items()
+        for key, tensor in module.state_dict().items()
+    }
+
+
+def load_modules(modules: dict[str, nn.Module], arrays: dict[str, np.ndarray]) -> None:
+    """Inverse of :func:`modules_to_arrays`; strict, so a mismatched shape or key raises RuntimeError."""
+    for name, module in modules.items():
+        prefix = name + "."
+        tensors = {
+            k[len(prefix) :]: torch.from_numpy(v.copy()) for k, v in arrays.items() if k.startswith(prefix)
+        }
+        module.load_state_dict(tensors, strict=True)

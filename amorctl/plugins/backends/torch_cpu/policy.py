@@ -11,7 +11,7 @@ import torch
 
 from amorctl.config import NetworkConfig
 from amorctl.errors import AmorError
-from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer
+from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer, load_modules
 from amorctl.trainer import State
 
 
@@ -34,17 +34,9 @@ class TorchPolicy:
         self.critic = Critic(obs_dim, m, network.critic_hidden)
         self.normalizer = RunningNormalizer(obs_dim, clip=network.obs_clip)
         try:
-            for prefix, module in (
-                ("actor", self.actor),
-                ("critic", self.critic),
-                ("normalizer", self.normalizer),
-            ):
-                tensors = {
-                    k[len(prefix) + 1 :]: torch.from_numpy(v.copy())
-                    for k, v in state.arrays.items()
-                    if k.startswith(prefix + ".")
-                }
-                module.load_state_dict(tensors, strict=True)
+            load_modules(
+                {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}, state.arrays
+            )
         except RuntimeError as exc:
             raise AmorError(f"checkpoint does not fit the run's network configuration: {exc}") from None
         for module in (self.actor, self.critic, self.normalizer):
