@@ -181,17 +181,12 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
             config.integrate_inplace(vel, dt)
         qpos[t] = config.q
     r = kin.root_qpos
-    out = CharacterMotion(
-        name=motion.name,
-        source=motion.source,
-        sha256=motion.sha256,
-        licence=motion.licence,
-        character=kin.spec.name,
-        times=motion.times,
+    out = CharacterMotion.retargeted(
+        motion,
+        kin.spec.name,
         root_pos=qpos[:, r : r + 3].copy(),
         root_quat=qpos[:, r + 3 : r + 7].copy(),
         joint_pos=qpos[:, kin.joint_qpos].copy(),
-        source_fps=motion.source_fps,
         stats={"method": "ik", "scale": scale},
     )
     out = finish(out, motion, kin, lift=True, targets=scaled)

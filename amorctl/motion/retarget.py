@@ -66,17 +66,12 @@ def retarget_direct(motion: SourceMotion, kin: CharacterKinematics) -> Character
     joint_pos = _shift_into_range(joint_pos, kin.joint_ranges)
     lo, hi = kin.joint_ranges[:, 0], kin.joint_ranges[:, 1]
     outside = (joint_pos < lo - 1e-9) | (joint_pos > hi + 1e-9)
-    out = CharacterMotion(
-        name=motion.name,
-        source=motion.source,
-        sha256=motion.sha256,
-        licence=motion.licence,
-        character=kin.spec.name,
-        times=motion.times,
+    out = CharacterMotion.retargeted(
+        motion,
+        kin.spec.name,
         root_pos=motion.root_pos.copy(),
         root_quat=motion.local_quat[:, 0].copy(),
         joint_pos=joint_pos,
-        source_fps=motion.source_fps,
         stats={
             "method": "direct",
             "unmapped_joints": [n for i, n in enumerate(names) if i not in done],

@@ -144,6 +144,31 @@ class CharacterMotion:
     retarget_error: float = 0.0
     stats: dict = field(default_factory=dict)
 
+    @classmethod
+    def retargeted(
+        cls,
+        source: SourceMotion,
+        character: str,
+        root_pos: np.ndarray,
+        root_quat: np.ndarray,
+        joint_pos: np.ndarray,
+        stats: dict,
+    ) -> CharacterMotion:
+        """Poses retargeted from ``source``, keeping its name, provenance, times and frame rate."""
+        return cls(
+            name=source.name,
+            source=source.source,
+            sha256=source.sha256,
+            licence=source.licence,
+            character=character,
+            times=source.times,
+            root_pos=root_pos,
+            root_quat=root_quat,
+            joint_pos=joint_pos,
+            source_fps=source.source_fps,
+            stats=stats,
+        )
+
 
 def forward_kinematics(
     skeleton: Skeleton, root_pos: np.ndarray, local_quat: np.ndarray
