@@ -21,8 +21,8 @@ from typing import Any
 
 import pluggy
 
-from amorctl.errors import AmorError
-from amorctl.specs import BackendSpec, CharacterSpec, ObjectiveSetSpec
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import BackendSpec, CharacterSpec, ObjectiveSetSpec
 
 PROJECT = "amorctl"
 ENTRY_POINT_GROUP = "amorctl"

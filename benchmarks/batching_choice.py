@@ -24,10 +24,10 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-from amorctl.envs.batch_sim import CTRL_SPEC, STATE_SPEC, BatchSim
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
+from amorctl.sim.batch_sim import CTRL_SPEC, STATE_SPEC, BatchSim
 
 
 def states_of(character: str, n: int) -> tuple[BatchSim, np.ndarray, np.ndarray, np.ndarray]:

@@ -17,10 +17,10 @@ import time
 import numpy as np
 import torch
 
-from amorctl.config import load_preset, override
+from amorctl.core.config import load_preset, override
+from amorctl.core.vecenv import RewardSpace
 from amorctl.plugins.backends.torch_cpu import bf16_supported
 from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
-from amorctl.vecenv import RewardSpace
 
 OBS, ACT, M = 251, 20, 7
 

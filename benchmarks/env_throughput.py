@@ -21,10 +21,10 @@ import time
 import mujoco
 import numpy as np
 
-from amorctl.envs.batch_sim import STATE_SPEC
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
+from amorctl.sim.batch_sim import STATE_SPEC
 
 
 def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -> float:

@@ -33,14 +33,14 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from amorctl.config import load_config, load_preset, merge, override
+from amorctl.core.config import load_config, load_preset, merge, override
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.clips import MotionLibrary
 from amorctl.motion.dataset import load_dataset, write_dataset
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
 from amorctl.registry import get_registry
-from amorctl.runner import CHECKPOINT_DIR, latest_checkpoint, make_env, train_run
+from amorctl.train.loop import CHECKPOINT_DIR, latest_checkpoint, make_env, train_run
 
 WALKING = ("walk", "walker/")
 

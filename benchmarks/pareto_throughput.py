@@ -3,7 +3,7 @@
 ``amorctl pareto`` evaluates K weight vectors in one batched rollout: K envs, one episode each,
 every control step running the policy (one batched forward pass), the tracking env (physics,
 observations, rewards, resets) and the rollout bookkeeping. The lower bound is the physics alone:
-the same :class:`~amorctl.envs.batch_sim.BatchSim` stepped the same number of batched control steps
+the same :class:`~amorctl.sim.batch_sim.BatchSim` stepped the same number of batched control steps
 from the same start states, with no policy, observations or rewards. The ratio
 ``sweep time / physics time`` is the overhead of everything else (goal: <= 1.3).
 
@@ -26,10 +26,10 @@ from typing import Any
 
 import torch
 
-from amorctl.config import TrainConfig, load_preset
-from amorctl.evaluation import make_eval_env, open_run, sample_weights
+from amorctl.analysis.evaluation import make_eval_env, open_run, sample_weights
+from amorctl.analysis.rollout import rollout, tracking_env
+from amorctl.core.config import TrainConfig, load_preset
 from amorctl.registry import get_registry
-from amorctl.rollout import rollout, tracking_env
 
 
 def untrained_policy(config: TrainConfig, env: Any) -> Any:

@@ -18,9 +18,9 @@ import statistics
 
 import torch
 
-from amorctl.config import load_preset, override
+from amorctl.core.config import load_preset, override
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
-from amorctl.runner import make_env
+from amorctl.train.loop import make_env
 
 
 def measure(preset: str, bf16: bool, iterations: int, num_envs: int | None) -> dict[str, float]:

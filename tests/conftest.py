@@ -32,8 +32,8 @@ def toy_run(tmp_path_factory: pytest.TempPathFactory):
     """A MOPPO policy trained on the two-objective toy env (``right`` / ``left``): its run directory."""
     import torch
 
-    from amorctl.config import TrainConfig, merge
-    from amorctl.runner import train_run
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.train.loop import train_run
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -53,11 +53,11 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
 
     import torch
 
-    from amorctl.config import TrainConfig, merge
+    from amorctl.core.config import TrainConfig, merge
     from amorctl.envs.synthetic import synthetic_library
     from amorctl.motion.dataset import write_dataset
     from amorctl.registry import get_registry
-    from amorctl.runner import train_run
+    from amorctl.train.loop import train_run
 
     root = tmp_path_factory.mktemp("tracking-run")
     lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
@@ -102,8 +102,8 @@ def toy_smooth_run(tmp_path_factory: pytest.TempPathFactory):
     target under w = (1, 0) and holds its action still under w = (0, 1). Its run directory."""
     import torch
 
-    from amorctl.config import TrainConfig, merge
-    from amorctl.runner import train_run
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.train.loop import train_run
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amorctl.plugins.characters.actuators import CommandDelay, available_torque, servo_torque
 from amorctl.plugins.characters.biped20 import NO_LOAD_SPEED, SPEC, TORQUE_LIMIT
+from amorctl.sim.actuators import CommandDelay, available_torque, servo_torque
 
 KP, KD = 21.1, 0.5
 

@@ -10,11 +10,11 @@ import mujoco
 import numpy as np
 import pytest
 
+from amorctl.core.specs import JOINT_GROUPS, KEYPOINTS, CharacterSpec
 from amorctl.plugins.characters import biped20, humanoid36
-from amorctl.plugins.characters.actuators import CommandDelay, servo_torque
 from amorctl.registry import get_registry
+from amorctl.sim.actuators import CommandDelay, servo_torque
 from amorctl.sim.model import load_model
-from amorctl.specs import JOINT_GROUPS, KEYPOINTS, CharacterSpec
 
 SPECS = {"humanoid36": humanoid36.SPEC, "biped20": biped20.SPEC}
 #: name -> (nq, nv, nu, total mass in kg)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from amorctl.config import TrainConfig, config_docs, load_config, load_preset, merge, override, to_toml
-from amorctl.errors import AmorError
+from amorctl.core.config import TrainConfig, config_docs, load_config, load_preset, merge, override, to_toml
+from amorctl.core.errors import AmorError
 
 
 def test_presets_have_the_documented_sizes() -> None:

@@ -8,13 +8,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from amorctl.envs.batch_sim import STATE_SPEC, BatchSim
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import frame_dim
+from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv, sample_weights
-from amorctl.envs.tracking_inputs import frame_dim
-from amorctl.errors import AmorError
 from amorctl.registry import get_registry
-from amorctl.vecenv import VectorEnv
+from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
 
 
 def _character(name: str):
@@ -263,7 +263,7 @@ def test_pd_batch_matches_per_env_mjdata() -> None:
 
 def test_servo_batch_applies_delayed_servo_torque_every_substep() -> None:
     ch = _character("biped20")
-    from amorctl.plugins.characters.actuators import servo_torque
+    from amorctl.sim.actuators import servo_torque
 
     env, lib = _make(ch, num_envs=3, seed=0)
     env.reset(seed=0)
@@ -302,8 +302,8 @@ def test_batch_sim_rejects_unknown_names() -> None:
 
 
 def test_frame_features_match_the_geometry_definition() -> None:
-    from amorctl.envs.tracking_inputs import frame_features, split_frame
-    from amorctl.geometry import heading_quat_inv, quat_mul, quat_rotate, quat_to_6d
+    from amorctl.core.frame_layout import frame_features, split_frame
+    from amorctl.core.geometry import heading_quat_inv, quat_mul, quat_rotate, quat_to_6d
 
     rng = np.random.default_rng(0)
     n, j, e = 20, 5, 3

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
-from amorctl.config import TrainConfig, merge
+from amorctl.core.config import TrainConfig, merge
+from amorctl.core.contracts import SnapshotEnv, State
+from amorctl.core.errors import AmorError
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
-from amorctl.errors import AmorError
 from amorctl.motion.dataset import write_dataset
 from amorctl.registry import get_registry
-from amorctl.runner import train_run
-from amorctl.trainer import SnapshotEnv, State
+from amorctl.train.checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from amorctl.train.loop import train_run
 
 NUM_ENVS = 3
 WARMUP, K = 7, 12  # 7 control steps of a 2-step-latency, 5-substep servo leave the delay head at 2

@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.cli.main import main
-from amorctl.envs.toy import ToyTradeoffEnv
-from amorctl.errors import AmorError
-from amorctl.evaluation import (
+from amorctl.analysis.evaluation import (
     parse_reference_point,
     sweep_levels_weights,
     tracking_metrics,
     weight_sweep,
 )
-from amorctl.pareto import hypervolume
-from amorctl.rollout import Episodes, Rollout, rollout
-from amorctl.runner import load_policy
-from amorctl.schemas import EVALUATE_JSON_SCHEMA, PARETO_JSON_SCHEMA
-from amorctl.weights import sample_dirichlet
+from amorctl.analysis.front import hypervolume
+from amorctl.analysis.rollout import Episodes, Rollout, rollout
+from amorctl.analysis.schemas import EVALUATE_JSON_SCHEMA, PARETO_JSON_SCHEMA
+from amorctl.cli.main import main
+from amorctl.core.errors import AmorError
+from amorctl.core.weights import sample_dirichlet
+from amorctl.envs.toy import ToyTradeoffEnv
+from amorctl.train.loop import load_policy
 
 torch.set_num_threads(1)
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -153,7 +153,7 @@ class _OraclePolicy:
 
 
 def test_sampled_front_matches_the_known_toy_front() -> None:
-    from amorctl.pareto import summarize_front
+    from amorctl.analysis.front import summarize_front
 
     k, steps = 64, 15
     w = sample_dirichlet(np.random.default_rng(0), k, 2).astype(np.float64)

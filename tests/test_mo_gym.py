@@ -8,11 +8,11 @@ import pytest
 import torch
 from gymnasium.wrappers import TimeLimit
 
-from amorctl.config import TrainConfig, override
+from amorctl.core.config import TrainConfig, override
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.mo_gym import MOGymVectorEnv
-from amorctl.errors import AmorError
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
-from amorctl.vecenv import VectorEnv
 
 torch.set_num_threads(1)
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.config import TrainConfig, override
+from amorctl.core.config import TrainConfig, override
 from amorctl.envs.toy import ToyTradeoffEnv
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
 from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer

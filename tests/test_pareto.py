@@ -8,8 +8,7 @@ import moocore
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
-from amorctl.pareto import (
+from amorctl.analysis.front import (
     default_reference_point,
     dominates,
     exact_hypervolume_limit,
@@ -22,7 +21,8 @@ from amorctl.pareto import (
     sparsity,
     summarize_front,
 )
-from amorctl.weights import sample_dirichlet, simplex_grid
+from amorctl.core.errors import AmorError
+from amorctl.core.weights import sample_dirichlet, simplex_grid
 
 # ---------------------------------------------------------------- dominance and filtering
 

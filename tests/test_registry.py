@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import ActuatorModel, BackendSpec, CharacterSpec, JointSpec, ObjectiveSetSpec
 from amorctl.registry import HookSpecs, hookimpl, load_registry
-from amorctl.specs import ActuatorModel, BackendSpec, CharacterSpec, JointSpec, ObjectiveSetSpec
 
 
 def _character(name: str) -> CharacterSpec:

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
-from amorctl.schedule import dump_schedule, load_schedule
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import dump_schedule, load_schedule
 
 NAMES = ["up", "lo", "smooth"]
 

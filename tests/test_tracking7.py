@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from amorctl.envs.tracking_inputs import FrameParts, TrackingInputs, frame_features, split_frame
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import FrameParts, TrackingInputs, frame_features, split_frame
 from amorctl.plugins.objectives import tracking7_kernels as k
 from amorctl.plugins.objectives.tracking7 import (
     ALIVE_BONUS,
@@ -232,7 +232,7 @@ def test_kernels_run_under_jax() -> None:
 
 
 def test_rot6d_frobenius_sq_matches_matrix_form() -> None:
-    from amorctl.geometry import rot6d_to_mat
+    from amorctl.core.geometry import rot6d_to_mat
 
     rng = np.random.default_rng(3)
     a, b = rng.standard_normal((40, 6)), rng.standard_normal((40, 6))

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
 from amorctl.cli.main import main
-from amorctl.config import TrainConfig, override
-from amorctl.errors import AmorError
+from amorctl.core.config import TrainConfig, override
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
-from amorctl.runner import check_compatible, make_env, train_run
-from amorctl.trainer import State
+from amorctl.train.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
+from amorctl.train.loop import check_compatible, make_env, train_run
 
 torch.set_num_threads(1)
 
@@ -257,7 +257,7 @@ def test_checkpoint_of_another_character_is_refused() -> None:
 
 
 def test_load_policy_reproduces_the_trainers_actions(tmp_path: Path) -> None:
-    from amorctl.runner import load_policy
+    from amorctl.train.loop import load_policy
 
     out = tmp_path / "run"
     train_run(tiny(run__iterations=2), out)

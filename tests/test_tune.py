@@ -19,10 +19,10 @@ import pytest
 import torch
 
 from amorctl.cli.main import main
-from amorctl.config import TrainConfig, override
-from amorctl.errors import AmorError
-from amorctl.plots import plot_rollout
-from amorctl.rollout_mcap import (
+from amorctl.core.config import TrainConfig, override
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import dump_schedule, load_schedule
+from amorctl.outputs.mcap_log import (
     TOPIC_ACTIONS,
     TOPIC_JOINTS,
     TOPIC_REF_JOINTS,
@@ -33,8 +33,8 @@ from amorctl.rollout_mcap import (
     read_rollout_mcap,
     write_rollout_mcap,
 )
-from amorctl.schedule import dump_schedule, load_schedule
-from amorctl.tune import TuneEnv, run_tune
+from amorctl.outputs.plots import plot_rollout
+from amorctl.tune.session import TuneEnv, run_tune
 
 torch.set_num_threads(1)
 
@@ -58,7 +58,7 @@ TRACKING7 = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A MOPPO policy on the toy env whose action follows w: ~+1 for w=(1,0), ~-1 for w=(0,1)."""
-    from amorctl.runner import train_run
+    from amorctl.train.loop import train_run
 
     out = tmp_path_factory.mktemp("toy") / "run"
     config = override(
@@ -88,7 +88,7 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from amorctl.envs.synthetic import synthetic_library
     from amorctl.motion.dataset import write_dataset
     from amorctl.registry import get_registry
-    from amorctl.runner import train_run
+    from amorctl.train.loop import train_run
 
     root = tmp_path_factory.mktemp("tracking")
     dataset = root / "sway.mcap"
@@ -152,7 +152,7 @@ def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(trackin
     # for seconds has not learnt to act smoother; the toy-smooth test below checks that effect.)
     tenv = TuneEnv(tracking_run, "sway1")
     assert tenv.motion == "sway1" and tenv.names == TRACKING7
-    from amorctl.schedule import parse_schedule
+    from amorctl.core.schedule import parse_schedule
 
     sched = parse_schedule(
         {
@@ -218,8 +218,8 @@ def test_raising_smooth_half_way_lowers_the_action_rate_after_the_switch(
 
 
 def test_toy_smooth_env_follows_the_vector_env_contract_and_resumes_exactly() -> None:
+    from amorctl.core.vecenv import VectorEnv
     from amorctl.envs.toy import ToySmoothEnv
-    from amorctl.vecenv import VectorEnv
 
     env = ToySmoothEnv(4, max_steps=5, hazard=0.2, seed=1)
     assert isinstance(env, VectorEnv) and env.reward_space.names == ("track", "smooth")
@@ -397,7 +397,7 @@ def test_cli_bad_input_fails_cleanly_without_partial_files(
 
 
 def test_live_session_slider_reaches_the_policy_on_the_next_step(tracking_run: Path, tmp_path: Path) -> None:
-    from amorctl.live import LiveSession
+    from amorctl.tune.live import LiveSession
 
     session = LiveSession(TuneEnv(tracking_run, "sway0"), save_to=tmp_path / "rec.toml")
     rec = session.step()
@@ -568,7 +568,7 @@ def test_live_page_in_headless_chromium(
 
 def test_live_app_steps_a_toy_run_in_the_background_and_stops(toy_run: Path) -> None:
     # the page for a run without a character (the toy task's scene), served and stepped in-process
-    from amorctl.live import LiveApp, LiveSession
+    from amorctl.tune.live import LiveApp, LiveSession
 
     session = LiveSession(TuneEnv(toy_run), np.array([1.0, 0.0]))
     app = LiveApp(session, host="127.0.0.1", port=_free_port(), realtime=False).start()

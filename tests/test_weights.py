@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
-from amorctl.weights import format_weights, parse_weights, sample_dirichlet
+from amorctl.core.errors import AmorError
+from amorctl.core.weights import format_weights, parse_weights, sample_dirichlet
 
 NAMES = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
 

@@ -7,10 +7,10 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from amorctl.character_info import describe_character
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, print_json
 from amorctl.registry import get_registry
+from amorctl.sim.character_info import describe_character
 
 app = typer.Typer(help="Inspect the installed characters.", no_args_is_help=True)
 

@@ -11,11 +11,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from amorctl.cli.options import JsonFlag
-from amorctl.cli.output import console, print_json
-from amorctl.cli.pareto import MotionOpt, rollout_progress
-from amorctl.errors import AmorError
-from amorctl.evaluation import (
+from amorctl.analysis.evaluation import (
     DEFAULT_SWEEP_LEVELS,
     EvalResult,
     check_objective,
@@ -24,9 +20,13 @@ from amorctl.evaluation import (
     open_run,
     weight_sweep,
 )
-from amorctl.rollout import WeightsSource, rollout, tracking_env
-from amorctl.schedule import Schedule, load_schedule
-from amorctl.weights import parse_weights
+from amorctl.analysis.rollout import WeightsSource, rollout, tracking_env
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, print_json
+from amorctl.cli.pareto import MotionOpt, rollout_progress
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import Schedule, load_schedule
+from amorctl.core.weights import parse_weights
 
 ROWS = (
     ("joint MAE (deg)", "joint_mae_deg", ".2f"),
@@ -93,7 +93,7 @@ def _video(
     seed: int,
 ) -> dict[str, Any]:  # fmt: skip
     """Roll out one env for one episode (at most ``seconds``) and render it with ghost and weights."""
-    from amorctl.render import reference_qpos, render_video
+    from amorctl.outputs.video import reference_qpos, render_video
 
     if config.env.kind != "tracking":
         raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
@@ -180,7 +180,7 @@ def evaluate(
             )
     sweep_doc: dict[str, Any] | None = None
     if sweep is not None:
-        from amorctl.plots import sweep_figure
+        from amorctl.outputs.plots import sweep_figure
 
         with rollout_progress(show, f"sweep {sweep}") as on_step:
             ws = weight_sweep(

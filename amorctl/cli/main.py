@@ -10,7 +10,7 @@ import typer
 
 from amorctl import __version__
 from amorctl.cli import characters, data, evaluate, pareto, plugins, preprocess, train, tune
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 app = typer.Typer(
     name="amorctl",

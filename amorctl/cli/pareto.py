@@ -12,10 +12,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from amorctl.cli.options import JsonFlag
-from amorctl.cli.output import console, err_console, print_json
-from amorctl.errors import AmorError
-from amorctl.evaluation import (
+from amorctl.analysis.evaluation import (
     open_run,
     pareto_csv,
     pareto_sweep,
@@ -23,7 +20,10 @@ from amorctl.evaluation import (
     parse_reference_point,
     sample_weights,
 )
-from amorctl.io import atomic_write_text
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, err_console, print_json
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_write_text
 
 MotionOpt = Annotated[
     list[str] | None,
@@ -100,7 +100,7 @@ def pareto(
             hv_method=hv_method, seed=seed, sampling=sampling, on_step=on_step,  # type: ignore[arg-type]
         )  # fmt: skip
 
-    from amorctl.plots import pareto_figure
+    from amorctl.outputs.plots import pareto_figure
 
     files = {s: str(out_dir / f"pareto.{s}") for s in ("json", "csv", "png", "svg")}
     doc = {"run": str(run), **pareto_to_dict(sweep, files)}

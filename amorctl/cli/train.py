@@ -14,10 +14,10 @@ from rich.table import Table
 from rich.text import Text
 
 from amorctl.cli.output import console, print_json
-from amorctl.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
-from amorctl.errors import AmorError
-from amorctl.runner import load_run_config, train_run
-from amorctl.vecenv import VectorEnv
+from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
+from amorctl.train.loop import load_run_config, train_run
 
 
 def _fmt_time(seconds: float) -> str:

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 
 def _check_outputs(paths: list[Path | None]) -> None:
@@ -89,11 +89,11 @@ def tune(
 ) -> None:
     """Run the policy with weights chosen after training: constant (--weights), over time
     (--schedule), or live in the browser (--live). Prints per-objective returns."""
-    from amorctl.plots import plot_rollout
-    from amorctl.rollout_mcap import write_rollout_mcap
-    from amorctl.schedule import load_schedule
-    from amorctl.tune import TuneEnv, run_tune
-    from amorctl.weights import parse_weights
+    from amorctl.core.schedule import load_schedule
+    from amorctl.core.weights import parse_weights
+    from amorctl.outputs.mcap_log import write_rollout_mcap
+    from amorctl.outputs.plots import plot_rollout
+    from amorctl.tune.session import TuneEnv, run_tune
 
     if live:
         if schedule is not None or out is not None or plot is not None or video is not None:
@@ -110,9 +110,9 @@ def tune(
         if video.suffix.lower() != ".mp4":
             raise AmorError(f"--video {video}: the file must end in .mp4")
         try:
-            from amorctl.render import render_video
+            from amorctl.outputs.video import render_video
         except ImportError:
-            raise AmorError("--video needs amorctl.render, which this installation lacks") from None
+            raise AmorError("--video needs amorctl.outputs.video, which this installation lacks") from None
 
     tenv = TuneEnv(run, motion, seed=seed)
     if video is not None and not tenv.tracking:
@@ -121,7 +121,7 @@ def tune(
     try:
         w0 = parse_weights(weights, tenv.names) if weights is not None else None
         if live:
-            from amorctl.live import LiveSession, serve_live
+            from amorctl.tune.live import LiveSession, serve_live
 
             session = LiveSession(tenv, w0, save_to=save_to)
             serve_live(

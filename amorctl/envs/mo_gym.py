@@ -2,7 +2,7 @@
 
 :class:`MOGymVectorEnv` turns N copies of a single ``gymnasium.Env`` whose ``step`` returns a
 reward vector of shape ``[m]`` and which describes it by a ``reward_space`` Box (as every
-MO-Gymnasium env does) into an :class:`~amorctl.vecenv.VectorEnv`:
+MO-Gymnasium env does) into an :class:`~amorctl.core.vecenv.VectorEnv`:
 
 - observations are flattened to float32 and the episode's weights ``w`` are appended;
 - each copy draws ``w ~ Dirichlet(1)`` at every episode start (from the adapter's own seeded
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.vecenv import RewardSpace
-from amorctl.weights import sample_dirichlet
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weights import sample_dirichlet
 
 
 class MOGymVectorEnv:

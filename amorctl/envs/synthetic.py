@@ -2,7 +2,7 @@
 
 Each clip holds the character's standing pose at a fixed heading with a sinusoid added to every
 actuated joint; end-effector poses come from MuJoCo forward kinematics of each frame, velocities
-from finite differences, ``frames`` from :func:`amorctl.envs.tracking_inputs.frame_features`, and
+from finite differences, ``frames`` from :func:`amorctl.core.frame_layout.frame_features`, and
 the latent ``z`` is a (sin, cos) phase code standing in for the motion VAE.
 """
 
@@ -11,10 +11,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from amorctl.envs.tracking_inputs import frame_features
-from amorctl.geometry import quat_mul, yaw_quat
+from amorctl.core.frame_layout import frame_features
+from amorctl.core.geometry import quat_mul, yaw_quat
+from amorctl.core.specs import CharacterSpec
 from amorctl.motion.clips import ClipInfo, MotionLibrary
-from amorctl.specs import CharacterSpec
 
 
 def synthetic_library(
@@ -33,7 +33,7 @@ def synthetic_library(
         amplitude: joint sinusoid amplitude, rad (clipped to the joint range).
         seed: seed of the random headings, frequencies and phases.
     """
-    from amorctl.envs.batch_sim import BatchSim  # joint/root indexing of the compiled model
+    from amorctl.sim.batch_sim import BatchSim  # joint/root indexing of the compiled model
 
     rng = np.random.default_rng(seed)
     sim = BatchSim(character, num_envs=1, nthread=1)

@@ -1,4 +1,4 @@
-"""A two-objective toy :class:`~amorctl.vecenv.VectorEnv` whose best action depends on ``w``.
+"""A two-objective toy :class:`~amorctl.core.vecenv.VectorEnv` whose best action depends on ``w``.
 
 Each step the agent picks one number ``a``. Objective 0 (``right``) rewards ``a`` near ``+1 + s``,
 objective 1 (``left``) rewards ``a`` near ``-1 + s``, both as ``exp(-(a - target)^2)``, where
@@ -7,7 +7,7 @@ about ``+1 + s``, under ``w = (0, 1)`` about ``-1 + s``: a policy that ignores `
 well on both, so a trained MOPPO policy's action sign visibly flips with ``w``.
 
 Episodes end by a random hazard (terminated, 1% per step, independent of the action) or at the
-time limit (truncated). It is fully seeded and snapshotable (:class:`amorctl.trainer.SnapshotEnv`),
+time limit (truncated). It is fully seeded and snapshotable (:class:`amorctl.core.contracts.SnapshotEnv`),
 so runs on it resume bit-exactly. Used by tests and as ``[env] kind = "toy"``.
 
 :class:`ToySmoothEnv` (``[env] kind = "toy-smooth"``) is a second toy task whose objectives are
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.trainer import State
-from amorctl.vecenv import RewardSpace
-from amorctl.weights import sample_dirichlet
+from amorctl.core.contracts import State
+from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weights import sample_dirichlet
 
 TOY_REWARD_SPACE = RewardSpace(
     names=("right", "left"),

@@ -1,4 +1,4 @@
-"""The motion-tracking vector environment (follows :class:`amorctl.vecenv.VectorEnv`).
+"""The motion-tracking vector environment (follows :class:`amorctl.core.vecenv.VectorEnv`).
 
 N characters track clips of a :class:`MotionLibrary` in parallel. Every episode starts with
 reference-state initialization (RSI) at a random clip and time and draws ``w ~ Dirichlet(1)``
@@ -7,7 +7,7 @@ and jumps to the start of a new random clip when its clip ends, while ``w`` stay
 terminates when the character falls or its simulation diverges, and is truncated at
 ``max_episode_steps``; envs reset themselves. Episodes: docs/environment.md; observation layout
 and action: docs/observations.md; rewards: the objective set (docs/objectives.md). The env is a
-:class:`amorctl.trainer.SnapshotEnv` (``get_state`` / ``set_state``), so tracking runs resume
+:class:`amorctl.core.contracts.SnapshotEnv` (``get_state`` / ``set_state``), so tracking runs resume
 bit-exactly.
 """
 
@@ -19,14 +19,14 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amorctl.envs.batch_sim import BatchSim
-from amorctl.envs.tracking_inputs import TrackingInputs, frame_dim, frame_features, split_frame
-from amorctl.errors import AmorError
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features, split_frame
+from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
+from amorctl.core.vecenv import RewardSpace
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
-from amorctl.specs import CharacterSpec, ObjectiveSetSpec
-from amorctl.trainer import State
-from amorctl.vecenv import RewardSpace
+from amorctl.sim.batch_sim import BatchSim
 
 ActionMode = Literal["absolute", "residual"]
 
@@ -185,7 +185,7 @@ class TrackingEnv:
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """One control step; see :class:`amorctl.vecenv.VectorEnv` for the returned arrays.
+        """One control step; see :class:`amorctl.core.vecenv.VectorEnv` for the returned arrays.
 
         ``info`` holds ``final_obs`` [N, obs_dim], ``fell`` [N] bool (terminated by the fall
         rule), ``diverged`` [N] bool (simulation blew up: terminated, rewards zeroed, env reset),
@@ -277,7 +277,7 @@ class TrackingEnv:
         """Release the simulation's thread pool."""
         self.sim.close()
 
-    # --- snapshots (amorctl.trainer.SnapshotEnv) ---------------------------------------------------
+    # --- snapshots (amorctl.core.contracts.SnapshotEnv) ---------------------------------------------------
 
     #: Per-env arrays the next step reads, saved under their names without the leading underscore.
     SNAPSHOT_ARRAYS = (

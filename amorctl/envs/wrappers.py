@@ -1,4 +1,4 @@
-"""Wrappers around any :class:`~amorctl.vecenv.VectorEnv`."""
+"""Wrappers around any :class:`~amorctl.core.vecenv.VectorEnv`."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.vecenv import VectorEnv
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
 
 
 class FixedWeights:

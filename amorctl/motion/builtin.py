@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 BUILTIN_SETS: tuple[str, ...] = ("deepmimic",)
 

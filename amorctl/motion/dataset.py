@@ -25,8 +25,8 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from amorctl import __version__
-from amorctl.errors import AmorError
-from amorctl.io import atomic_path
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_path
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 
 FORMAT = "amorctl.motion_dataset"

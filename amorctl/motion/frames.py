@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from amorctl.envs.tracking_inputs import frame_features
-from amorctl.geometry import (
+from amorctl.core.frame_layout import frame_features
+from amorctl.core.geometry import (
     quat_conj,
     quat_from_rotvec,
     quat_mul,
@@ -79,7 +79,7 @@ def integrate_rotation(q0: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
 def frame_vectors(**state: np.ndarray) -> np.ndarray:
     """The paper's m_t [T, D] from world-frame state arrays with a leading [T].
 
-    The one implementation is :func:`amorctl.envs.tracking_inputs.frame_features` (the env computes
+    The one implementation is :func:`amorctl.core.frame_layout.frame_features` (the env computes
     the simulated character's frames with it every step), so datasets and observations agree
     exactly; this name keeps the keyword call used by the motion code.
     """

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import CharacterSpec
 from amorctl.sim.model import load_model
-from amorctl.specs import CharacterSpec
 
 
 @dataclass

@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 from amorctl.motion.builtin import builtin_clips, source_label
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 from amorctl.motion.dataset import write_dataset
-from amorctl.motion.deepmimic import DEEPMIMIC_LICENCE
+from amorctl.motion.formats import ImportOptions, import_file
+from amorctl.motion.formats.deepmimic import DEEPMIMIC_LICENCE
 from amorctl.motion.frames import clip_arrays, frame_layout
-from amorctl.motion.importers import ImportOptions, import_file
 from amorctl.motion.kinematics import CharacterKinematics, character_kinematics
 from amorctl.motion.resample import resample_character, resample_source
 from amorctl.motion.retarget import retarget

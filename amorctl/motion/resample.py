@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from amorctl.geometry import quat_slerp
+from amorctl.core.geometry import quat_slerp
 from amorctl.motion.source import CharacterMotion, SourceMotion
 
 

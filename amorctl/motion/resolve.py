@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 
 

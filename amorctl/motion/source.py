@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_mul, quat_rotate
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import quat_mul, quat_rotate
 
 #: DeepMimic (y up) -> MuJoCo (z up): +90° about x, (x, y, z) -> (x, -z, y).
 C_DM_TO_MJ = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

@@ -23,7 +23,7 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 from torch import nn
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 
 @dataclass(frozen=True)

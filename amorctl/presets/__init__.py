@@ -1,1 +1,1 @@
-"""Built-in training presets (TOML files read by :func:`amorctl.config.load_preset`)."""
+"""Built-in training presets (TOML files read by :func:`amorctl.core.config.load_preset`)."""

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import mujoco
 
-from amorctl.errors import AmorError
-from amorctl.specs import CharacterSpec
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import CharacterSpec
 
 
 def load_model(spec: CharacterSpec) -> mujoco.MjModel:

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_conj, quat_mul, quat_to_rotvec
-from amorctl.motion.importers import ImportOptions, import_file
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import quat_conj, quat_mul, quat_to_rotvec
+from amorctl.motion.formats import ImportOptions, import_file
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     C_DM_TO_MJ_QUAT,
@@ -123,7 +123,7 @@ def test_bvh_in_centimetres_with_renamed_joints(clip_path, tmp_path):
 
 def test_bvh_facing_plus_z_with_forward_option(clip_path, tmp_path):
     """A skeleton whose rest pose faces +z in BVH axes (as CMU's) reads back facing +x."""
-    from amorctl.geometry import quat_from_rotvec, quat_rotate
+    from amorctl.core.geometry import quat_from_rotvec, quat_rotate
 
     src = import_file(clip_path("walk"), None, ImportOptions())
     dt = float(np.median(np.diff(src.times)))

@@ -19,7 +19,7 @@ from amorctl.motion.dataset import (
     load_encoder_bytes,
     write_dataset,
 )
-from amorctl.motion.deepmimic import DEEPMIMIC_LICENCE
+from amorctl.motion.formats.deepmimic import DEEPMIMIC_LICENCE
 from amorctl.motion.preprocess import preprocess
 from amorctl.motion.vae import VaeConfig, encoder_from_bytes
 

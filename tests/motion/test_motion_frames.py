@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amorctl.geometry import quat_mul, quat_normalize, quat_rotate, yaw_quat
+from amorctl.core.geometry import quat_mul, quat_normalize, quat_rotate, yaw_quat
+from amorctl.motion.formats import ImportOptions, import_file
 from amorctl.motion.frames import (
     angular_velocity,
     clip_arrays,
@@ -15,7 +16,6 @@ from amorctl.motion.frames import (
     integrate,
     integrate_rotation,
 )
-from amorctl.motion.importers import ImportOptions, import_file
 from amorctl.motion.resample import resample_source
 from amorctl.motion.retarget import retarget
 from amorctl.motion.source import CharacterMotion

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 from amorctl.motion.builtin import deepmimic_clips
-from amorctl.motion.importers import ImportOptions, get_importer, import_file, importers, infer_format
+from amorctl.motion.formats import ImportOptions, get_importer, import_file, importers, infer_format
 from amorctl.motion.resample import resample_source
 from amorctl.motion.source import keypoint_positions
 

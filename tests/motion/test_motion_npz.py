@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amorctl.errors import AmorError
-from amorctl.motion.importers import ImportOptions, import_file
+from amorctl.core.errors import AmorError
+from amorctl.motion.formats import ImportOptions, import_file
 from amorctl.motion.preprocess import process_clip
 from amorctl.motion.resample import resample_source
 from amorctl.motion.retarget import retarget

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 from amorctl.motion.resolve import resolve_name
 
 NAMES = ["walk", "walker/0walk_forward", "walker/turn_left0", "walker/turn_left1", "run", "spin", "spinkick"]

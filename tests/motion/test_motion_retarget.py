@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amorctl.motion.importers import ImportOptions, import_file
+from amorctl.motion.formats import ImportOptions, import_file
 from amorctl.motion.resample import resample_source
 from amorctl.motion.retarget import keypoint_errors, retarget, retarget_direct, smooth_lift
 from amorctl.motion.source import CharacterMotion, keypoint_positions

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
+from amorctl.motion.formats import ImportOptions, import_file
 from amorctl.motion.frames import clip_arrays
-from amorctl.motion.importers import ImportOptions, import_file
 from amorctl.motion.resample import resample_source
 from amorctl.motion.retarget import retarget
 from amorctl.motion.vae import VaeConfig, encoder_from_bytes, encoder_to_bytes, train_vae, window_indices

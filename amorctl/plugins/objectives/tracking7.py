@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.envs.tracking_inputs import TrackingInputs
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import TrackingInputs
+from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.plugins.objectives import tracking7_kernels as k
 from amorctl.registry import hookimpl
-from amorctl.specs import CharacterSpec, ObjectiveSetSpec
 
 NAME = "tracking7"
 

@@ -1,7 +1,7 @@
 """The ``torch-cpu`` backend plugin: MuJoCo (C, threaded) for physics, PyTorch on the CPU for MOPPO.
 
 ``BackendSpec.make()`` returns a :class:`TorchCpuBackend`, which makes the motion-tracking env
-(``make_env``) and the MOPPO trainer (``make_trainer``, implementing :class:`amorctl.trainer.Trainer`).
+(``make_env``) and the MOPPO trainer (``make_trainer``, implementing :class:`amorctl.core.contracts.Trainer`).
 """
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ from typing import Any
 
 import torch
 
-from amorctl.config import TrainConfig
-from amorctl.errors import AmorError
+from amorctl.core.config import TrainConfig
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import BackendSpec
+from amorctl.core.vecenv import VectorEnv
 from amorctl.registry import hookimpl
-from amorctl.specs import BackendSpec
-from amorctl.trainer import State
-from amorctl.vecenv import VectorEnv
 
 NAME = "torch-cpu"
 

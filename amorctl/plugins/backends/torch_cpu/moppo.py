@@ -32,8 +32,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from amorctl.config import NetworkConfig, PPOConfig
-from amorctl.errors import AmorError
+from amorctl.core.config import NetworkConfig, PPOConfig
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
 from amorctl.plugins.backends.torch_cpu.gae import gae
 from amorctl.plugins.backends.torch_cpu.networks import (
     Actor,
@@ -44,8 +46,6 @@ from amorctl.plugins.backends.torch_cpu.networks import (
     load_modules,
     modules_to_arrays,
 )
-from amorctl.trainer import State
-from amorctl.vecenv import VectorEnv
 
 EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
 LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
@@ -81,7 +81,7 @@ class Batch:
 
 
 class MOPPOTrainer:
-    """MOPPO for any :class:`~amorctl.vecenv.VectorEnv`; implements :class:`amorctl.trainer.Trainer`."""
+    """MOPPO for any ``VectorEnv``; implements :class:`~amorctl.core.contracts.Trainer`."""
 
     def __init__(
         self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int, bf16: bool = False

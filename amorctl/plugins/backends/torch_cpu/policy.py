@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from amorctl.config import NetworkConfig
-from amorctl.errors import AmorError
+from amorctl.core.config import NetworkConfig
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
 from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer, load_modules
-from amorctl.trainer import State
 
 
 class TorchPolicy:

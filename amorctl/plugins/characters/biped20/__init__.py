@@ -3,7 +3,7 @@
 The MJCF (primitive geoms, no meshes) keeps MuJoCo Menagerie ``op3.xml``'s joint names, axes,
 link masses and inertias. Actuation is a servo model beyond ideal PD (``ActuatorModel(kind="servo")``):
 PD on a command delayed by ``latency_steps`` physics steps, clipped by a linear torque–speed curve
-(:mod:`amorctl.plugins.characters.actuators`), plus native armature and Coulomb/viscous friction.
+(:mod:`amorctl.sim.actuators`), plus native armature and Coulomb/viscous friction.
 See ``docs/characters.md``.
 """
 
@@ -13,8 +13,8 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from amorctl.core.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
 from amorctl.registry import hookimpl
-from amorctl.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
 
 #: op3.xml servo parameters (XM430-W350 servos): position-actuator kp, forcerange, joint defaults.
 KP = 21.1  # N·m/rad

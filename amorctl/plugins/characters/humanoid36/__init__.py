@@ -15,8 +15,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from amorctl.core.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
 from amorctl.registry import hookimpl
-from amorctl.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
 
 _PI = 3.14159  # the MJCF writes ranges with these literals
 _HALF_PI = 1.5708

@@ -10,8 +10,8 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from amorctl.core.specs import ActuatorModel, CharacterSpec, JointSpec
 from amorctl.registry import hookimpl
-from amorctl.specs import ActuatorModel, CharacterSpec, JointSpec
 
 _HERE = Path(__file__).parent
 _D = math.radians

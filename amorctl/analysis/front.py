@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 HypervolumeMethod = Literal["auto", "exact", "monte_carlo"]
 

@@ -21,9 +21,9 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
-from amorctl.errors import AmorError
-from amorctl.io import atomic_path, atomic_write_text
-from amorctl.trainer import State
+from amorctl.core.contracts import State
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_path, atomic_write_text
 
 FORMAT = "amorctl-checkpoint/1"
 _NAME = re.compile(r"^iter_(\d+)\.json$")

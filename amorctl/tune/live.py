@@ -5,7 +5,7 @@ tests drive it directly: :meth:`~LiveSession.set_slider` changes a raw slider va
 are the sliders normalized onto the simplex, and :meth:`~LiveSession.step` runs one control step
 with them in the policy's observation (:attr:`~LiveSession.weights_seen_by_policy` is what the
 policy got). Keyframes recorded at the current time are saved with
-:func:`amorctl.schedule.dump_schedule`, in the format ``amorctl tune --schedule`` reads.
+:func:`amorctl.core.schedule.dump_schedule`, in the format ``amorctl tune --schedule`` reads.
 
 :class:`LiveApp` puts a session on a ``viser`` page (viser serves its own prebuilt client, so it
 works offline): the character's geoms as viser primitives posed from the bodies every control
@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.schedule import dump_schedule
-from amorctl.tune import StepRecord, TuneEnv, geom_table
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import dump_schedule
+from amorctl.tune.session import StepRecord, TuneEnv, geom_table
 
 SLIDER_MAX = 1.0
 SLIDER_STEP = 0.01

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_normalize
-from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import quat_normalize
+from amorctl.motion.formats import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import CharacterMotion, check_finite, check_times
 
 REQUIRED = ("fps", "joint_pos", "body_pos_w", "body_quat_w")

@@ -1,6 +1,6 @@
 """The backend-agnostic training interface: what a backend's trainer provides to the runner.
 
-The runner (:mod:`amorctl.runner`) drives any backend through :class:`Trainer`: one call to
+The runner (:mod:`amorctl.train.loop`) drives any backend through :class:`Trainer`: one call to
 ``iteration()`` collects a rollout and updates the networks; ``state_dict()`` returns everything
 needed to continue bit-exactly as plain arrays plus JSON-ready metadata (:class:`State`), so
 checkpoints are safetensors + JSON and never pickles. The torch-cpu backend implements it in
@@ -17,8 +17,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from amorctl.config import TrainConfig
-from amorctl.vecenv import VectorEnv
+from amorctl.core.config import TrainConfig
+from amorctl.core.vecenv import VectorEnv
 
 
 @dataclass
@@ -64,7 +64,7 @@ class Trainer(Protocol):
 
 @runtime_checkable
 class SnapshotEnv(Protocol):
-    """A :class:`~amorctl.vecenv.VectorEnv` that can save and restore its full state."""
+    """A :class:`~amorctl.core.vecenv.VectorEnv` that can save and restore its full state."""
 
     def get_state(self) -> State:
         """The env's complete state, RNG included, as arrays plus JSON-ready metadata."""

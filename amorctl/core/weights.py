@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 
 def parse_weights(text: str, names: Sequence[str], *, default: float = 0.0) -> np.ndarray:

@@ -39,7 +39,7 @@ class ActuatorModel:
     clipped to ±torque_limit, all inside MuJoCo.
 
     ``kind="servo"``: MuJoCo motor actuators whose torque is computed every physics substep by
-    :func:`amorctl.plugins.characters.actuators.servo_torque` (vectorized over envs): the PD
+    :func:`amorctl.sim.actuators.servo_torque` (vectorized over envs): the PD
     law on a command delayed by ``latency_steps`` physics steps, clipped by a torque–speed curve
     that falls linearly from ``torque_limit`` at rest to zero at ``no_load_speed``. Armature,
     Coulomb friction (``frictionloss``) and viscous friction (``damping``) are native MuJoCo joint

@@ -6,8 +6,8 @@ import math
 from dataclasses import asdict
 from typing import Any
 
+from amorctl.core.specs import CharacterSpec
 from amorctl.sim.model import load_model
-from amorctl.specs import CharacterSpec
 
 
 def describe_character(spec: CharacterSpec) -> dict[str, Any]:

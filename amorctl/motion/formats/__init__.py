@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 from amorctl.motion.source import CharacterMotion, SourceMotion
 
 
@@ -61,7 +61,7 @@ def register_importer(importer: Importer) -> None:
 
 def _ensure_builtins() -> None:
     # Importing the modules registers them.
-    from amorctl.motion import bvh, deepmimic, npz  # noqa: F401
+    from amorctl.motion.formats import bvh, deepmimic, npz  # noqa: F401
 
 
 def importers() -> dict[str, Importer]:

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_from_rotvec, quat_mul, quat_normalize
-from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import quat_from_rotvec, quat_mul, quat_normalize
+from amorctl.motion.formats import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     C_DM_TO_MJ_QUAT,

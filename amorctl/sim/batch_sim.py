@@ -24,9 +24,9 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_conj, quat_rotate
-from amorctl.specs import CharacterSpec
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import quat_conj, quat_rotate
+from amorctl.core.specs import CharacterSpec
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 CTRL_SPEC = mujoco.mjtState.mjSTATE_CTRL
@@ -171,7 +171,7 @@ class BatchSim:
         self.torque = np.zeros((n, self.substeps, self.num_joints))
 
         if self.servo:
-            from amorctl.plugins.characters.actuators import CommandDelay, servo_torque
+            from amorctl.sim.actuators import CommandDelay, servo_torque
 
             joints = character.joints
             self.kp = np.array([j.kp for j in joints])

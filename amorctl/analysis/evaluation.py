@@ -1,7 +1,7 @@
 """Evaluate a trained run: Pareto sweeps over weights, tracking metrics, weight sweeps.
 
 The library behind ``amorctl pareto`` and ``amorctl evaluate`` (docs/pareto.md, docs/evaluate.md).
-Everything runs batched: a sweep over K weight vectors is one :func:`amorctl.rollout.rollout`
+Everything runs batched: a sweep over K weight vectors is one :func:`amorctl.analysis.rollout.rollout`
 with one weight vector per environment. Nothing here prints.
 
 Shapes: K = weight vectors, G = motion groups, E = episodes per weight, m = objectives.
@@ -21,16 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.checkpoint import list_checkpoints
-from amorctl.config import TrainConfig
-from amorctl.errors import AmorError
+from amorctl.analysis.front import FrontSummary, HypervolumeMethod, summarize_front
+from amorctl.analysis.rollout import Rollout, WeightsSource, rollout, tracking_env
+from amorctl.core.config import TrainConfig
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import Schedule
+from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import format_weights
 from amorctl.motion.resolve import resolve_name
-from amorctl.pareto import FrontSummary, HypervolumeMethod, summarize_front
-from amorctl.rollout import Rollout, WeightsSource, rollout, tracking_env
-from amorctl.runner import CHECKPOINT_DIR, CONFIG_FILE, load_policy, make_env
-from amorctl.schedule import Schedule
-from amorctl.vecenv import VectorEnv
-from amorctl.weights import format_weights
+from amorctl.train.checkpoint import list_checkpoints
+from amorctl.train.loop import CHECKPOINT_DIR, CONFIG_FILE, load_policy, make_env
 
 ALL_MOTIONS = "all"  # the group name when no --motion is given (episodes draw clips at random)
 JOINT_GROUP_LABELS = {"upper": "up", "lower": "lo", "feet": "feet"}
@@ -132,7 +132,7 @@ def sample_weights(
     Raises:
         AmorError: ``samples < 1`` or ``grid < 1``.
     """
-    from amorctl.weights import sample_dirichlet, simplex_grid
+    from amorctl.core.weights import sample_dirichlet, simplex_grid
 
     if grid is not None:
         if grid < 1:
@@ -156,7 +156,7 @@ class ParetoGroup:
         points_std: [K, m] their standard deviation over the E episodes.
         survival: [K] fraction of the E episodes that reached the time limit.
         equal_point: [m] the mean returns of the equal-weights (1/m) policy.
-        summary: the front metrics of ``points`` (:class:`~amorctl.pareto.FrontSummary`).
+        summary: the front metrics of ``points`` (:class:`~amorctl.analysis.front.FrontSummary`).
     """
 
     motion: str
@@ -209,7 +209,7 @@ def pareto_sweep(
         motions: motion names (one front per motion); None: one front over random clips.
         episodes: E episodes per weight vector.
         reference_point: [m] hypervolume reference (for every group); None: the default rule of
-            :func:`amorctl.pareto.default_reference_point`, per group.
+            :func:`amorctl.analysis.front.default_reference_point`, per group.
         hv_method: ``auto`` | ``exact`` | ``monte_carlo``.
         seed: env seed (RSI, clip draws).
         sampling: how ``weights`` were made (reported).
@@ -272,7 +272,7 @@ def pareto_sweep(
     rule = (
         "given (--ref-point)"
         if reference_point is not None
-        else "per motion: min - 0.1 * (max - min) per objective (amorctl.pareto.default_reference_point)"
+        else "per motion: min - 0.1 * (max - min) per objective (analysis.front.default_reference_point)"
     )
     return ParetoSweep(
         objective_names=obj_names,

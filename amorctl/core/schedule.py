@@ -40,8 +40,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.io import atomic_write_text
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_write_text
 
 if sys.version_info >= (3, 11):
     import tomllib

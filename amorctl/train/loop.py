@@ -30,20 +30,20 @@ from typing import Any
 import numpy as np
 
 from amorctl import __version__
-from amorctl.checkpoint import (
+from amorctl.core.config import TrainConfig, load_config, to_toml
+from amorctl.core.contracts import SnapshotEnv, Trainer
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_write_text
+from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import parse_weights
+from amorctl.registry import get_registry
+from amorctl.train.checkpoint import (
     Checkpoint,
     list_checkpoints,
     load_checkpoint,
     prune_checkpoints,
     save_checkpoint,
 )
-from amorctl.config import TrainConfig, load_config, to_toml
-from amorctl.errors import AmorError
-from amorctl.io import atomic_write_text
-from amorctl.registry import get_registry
-from amorctl.trainer import SnapshotEnv, Trainer
-from amorctl.vecenv import VectorEnv
-from amorctl.weights import parse_weights
 
 CONFIG_FILE = "config.toml"
 METRICS_FILE = "metrics.csv"

@@ -3,7 +3,7 @@
 MuJoCo expresses armature, Coulomb friction (``frictionloss``) and viscous friction (``damping``)
 natively; what it cannot express is a PD servo whose torque is limited by a torque–speed curve
 and that acts on a delayed command. That part lives here, as pure functions over arrays so the
-batched simulators reuse it (``ActuatorModel(kind="servo")``, see ``amorctl/specs.py``).
+batched simulators reuse it (``ActuatorModel(kind="servo")``, see ``amorctl/core/specs.py``).
 
 Shapes: N envs, J actuated joints. Per-joint parameters (``kp``, ``kd``, ``torque_limit``,
 ``no_load_speed``) may be scalars or arrays of shape ``[J]``; they broadcast against ``[N, J]``.

@@ -11,7 +11,7 @@ Two methods, chosen per character by :data:`RETARGETERS` (default: IK):
   limited to ±π cannot always follow, and clipping would change the pose (a backflip's key points
   moved by up to 1.7 m). The pose stays exact; ``stats["frames_outside_range"]`` counts, per
   joint, the frames whose angle lies outside the joint's range.
-- ``ik`` (any other character): inverse kinematics on key points, see :mod:`amorctl.motion.ik`.
+- ``ik`` (any other character): inverse kinematics on key points, see :mod:`amorctl.motion.retarget.ik`.
 
 Both finish with :func:`lift_to_floor`: in any frame where the character's collision geometry
 goes below the floor (z = 0) the root is raised until its lowest point touches it.
@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from amorctl.errors import AmorError
-from amorctl.geometry import mat_to_euler_xyz, quat_to_mat
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import mat_to_euler_xyz, quat_to_mat
 from amorctl.motion.kinematics import CharacterKinematics
 from amorctl.motion.source import CharacterMotion, SourceMotion, keypoint_positions
 
@@ -154,7 +154,7 @@ def finish(
 
 
 def _ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
-    from amorctl.motion.ik import retarget_ik
+    from amorctl.motion.retarget.ik import retarget_ik
 
     return retarget_ik(motion, kin)
 

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from amorctl.io import atomic_path
+from amorctl.core.files import atomic_path
 
 if TYPE_CHECKING:
-    from amorctl.tune import TuneRollout
+    from amorctl.tune.session import TuneRollout
 
 #: Topics of the rollout log (see docs/tune.md).
 TOPIC_TF = "/tf"
@@ -73,7 +73,7 @@ def write_rollout_mcap(
         ctx = foxglove.Context()
         with foxglove.open_mcap(tmp, allow_overwrite=True, context=ctx) as writer:
             writer.write_metadata(
-                "amorctl.tune",
+                "amorctl.tune.session",
                 {"objectives": ",".join(names), "motion": rollout.motion or "", "dt": repr(rollout.dt),
                  **(metadata or {})},
             )  # fmt: skip

@@ -6,7 +6,7 @@ second ``MjData``, recoloured), draws the current weights as a bar chart in the 
 and encodes an MP4 with imageio + imageio-ffmpeg (libx264).
 
 MuJoCo picks its OpenGL platform once per process, when it is imported (``MUJOCO_GL``), so the
-frames are rendered in a short-lived child process (``python -m amorctl.render``) that tries
+frames are rendered in a short-lived child process (``python -m amorctl.outputs.video``) that tries
 ``MUJOCO_GL=egl`` then ``osmesa`` (or only the one the user set). When neither works it raises one
 :class:`AmorError` saying what to install. Shadows are off: software rendering is ~15x faster
 without them (``../shared/RECIPES.md``).
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 GL_INSTALL_HINT = (
     "no headless OpenGL backend works here (tried MUJOCO_GL={tried}); install one with "
@@ -157,7 +157,7 @@ def render_video(
             env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
             try:
                 proc = subprocess.run(
-                    [sys.executable, "-m", "amorctl.render", str(job), str(partial)],
+                    [sys.executable, "-m", "amorctl.outputs.video", str(job), str(partial)],
                     env=env, capture_output=True, text=True, timeout=timeout_s, check=False,
                 )  # fmt: skip
             except subprocess.TimeoutExpired:
@@ -165,7 +165,7 @@ def render_video(
             if proc.returncode == 0:
                 import shutil
 
-                from amorctl.io import atomic_path
+                from amorctl.core.files import atomic_path
 
                 with atomic_path(out) as final:
                     shutil.copyfile(partial, final)
@@ -214,8 +214,8 @@ def _render_job(job: Path, out: Path) -> None:
     """The child process: render the frames of ``job`` and encode them to ``out``."""
     import mujoco
 
-    from amorctl.envs.batch_sim import build_model
     from amorctl.registry import get_registry
+    from amorctl.sim.batch_sim import build_model
 
     data_in = np.load(job)
     options = json.loads(str(data_in["options"]))

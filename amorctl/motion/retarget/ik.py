@@ -32,7 +32,7 @@ import mink
 import mujoco
 import numpy as np
 
-from amorctl.geometry import heading_angle, quat_mul, yaw_quat
+from amorctl.core.geometry import heading_angle, quat_mul, yaw_quat
 from amorctl.motion.kinematics import CharacterKinematics
 from amorctl.motion.retarget import finish
 from amorctl.motion.source import CharacterMotion, SourceMotion, forward_kinematics, keypoint_positions

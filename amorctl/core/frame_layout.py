@@ -88,7 +88,7 @@ def frame_features(
 ) -> Any:
     """The heading-frame frame vector m_t from world-frame state.
 
-    The heading is :func:`amorctl.geometry.heading_angle` of the root (yaw of its x axis); every
+    The heading is :func:`amorctl.core.geometry.heading_angle` of the root (yaw of its x axis); every
     vector and orientation is rotated by minus that yaw (``heading_quat_inv``), written out in
     closed form because this runs on every env step.
 

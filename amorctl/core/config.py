@@ -19,7 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, get_args, get_origin, get_type_hints
 
-from amorctl.errors import AmorError
+from amorctl.core.errors import AmorError
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -12,7 +12,7 @@ live tuning), and records what evaluation, Pareto sweeps and tuning need:
 
 Every env runs ``episodes`` complete episodes; an env that has finished them keeps being
 stepped (the batch moves together) but its further steps are masked out (``valid``) and never
-counted. Envs auto-reset (the :class:`~amorctl.vecenv.VectorEnv` contract), so an episode ends
+counted. Envs auto-reset (the :class:`~amorctl.core.vecenv.VectorEnv` contract), so an episode ends
 exactly at a ``terminated | truncated`` step.
 
 Shapes: T = steps recorded, N = envs, m = objectives, A = action dim, J = actuated joints,
@@ -27,11 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.envs.tracking_inputs import split_frame
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import split_frame
+from amorctl.core.schedule import Schedule
+from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.wrappers import FixedWeights
-from amorctl.errors import AmorError
-from amorctl.schedule import Schedule
-from amorctl.vecenv import VectorEnv
 
 # t -> weights: t is [N] seconds since each env's episode began; returns [N, m] (or [m]).
 WeightsFn = Callable[[np.ndarray], np.ndarray]
@@ -196,7 +196,7 @@ def rollout(
 
     Args:
         policy: ``policy(obs [N, D]) -> actions [N, A]`` (deterministic, e.g. from
-            :func:`amorctl.runner.load_policy`).
+            :func:`amorctl.train.loop.load_policy`).
         env: any :class:`VectorEnv` (wrapped in :class:`FixedWeights` here unless it already is).
         weights: ``[m]`` for every env, ``[N, m]`` one per env, a callable ``t [N] -> [N, m]``
             (t: seconds since each env's episode began), or a :class:`Schedule` (evaluated per

@@ -31,9 +31,16 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from amorctl.errors import AmorError
-from amorctl.geometry import quat_conj, quat_from_mat, quat_from_rotvec, quat_mul, quat_normalize, quat_rotate
-from amorctl.motion.importers import Importer, ImportOptions, file_sha256, register_importer
+from amorctl.core.errors import AmorError
+from amorctl.core.geometry import (
+    quat_conj,
+    quat_from_mat,
+    quat_from_rotvec,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+)
+from amorctl.motion.formats import Importer, ImportOptions, file_sha256, register_importer
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     CANONICAL_JOINTS,

@@ -4,11 +4,11 @@ This is the paper's core promise (Sections 1 and 7.2): one policy, conditioned o
 trade-off is tuned after training without retraining. :class:`TuneEnv` is one environment of a
 run, pinned to one motion, that the caller steps with any weights at every control step (through
 :class:`~amorctl.envs.wrappers.FixedWeights`); :func:`run_tune` rolls it out under a constant w or a
-:class:`~amorctl.schedule.Schedule` and records a :class:`TuneRollout`, which
-:func:`amorctl.rollout_mcap.write_rollout_mcap` logs with Foxglove schemas and
-:func:`amorctl.plots.plot_rollout` draws like the
+:class:`~amorctl.core.schedule.Schedule` and records a :class:`TuneRollout`, which
+:func:`amorctl.outputs.mcap_log.write_rollout_mcap` logs with Foxglove schemas and
+:func:`amorctl.outputs.plots.plot_rollout` draws like the
 paper's teaser / Fig. 7 (w(t) as stacked areas above the per-objective rewards). The live page
-(``amorctl.live``) drives the same :class:`TuneEnv`. Usage: docs/tune.md.
+(``amorctl.tune.live``) drives the same :class:`TuneEnv`. Usage: docs/tune.md.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from amorctl.analysis.rollout import tracking_env
+from amorctl.core.errors import AmorError
+from amorctl.core.schedule import Schedule
 from amorctl.envs.wrappers import FixedWeights
-from amorctl.errors import AmorError
-from amorctl.rollout import tracking_env
-from amorctl.runner import TOY_CONTROL_HZ, check_compatible, load_policy, make_env
-from amorctl.schedule import Schedule
+from amorctl.train.loop import TOY_CONTROL_HZ, check_compatible, load_policy, make_env
 
 # ---------------------------------------------------------------------------- one pinned env
 
@@ -67,7 +67,7 @@ class TuneEnv:
     weights; a tracking env is restricted to the chosen clip, starting at its first frame
     (``select_clips(..., from_start=True)``), and wrapped in :class:`FixedWeights` (``env``).
     :func:`run_tune` rolls ``base`` out with
-    :func:`amorctl.rollout.rollout`; the live page steps it one control step at a time with
+    :func:`amorctl.analysis.rollout.rollout`; the live page steps it one control step at a time with
     :meth:`step`, which puts the weights into the observation the policy acts on, so a change
     reaches the policy at the very next control step.
 
@@ -329,7 +329,7 @@ def run_tune(
 ) -> TuneRollout:
     """Roll the pinned motion out from its start under constant weights or a schedule.
 
-    The stepping is :func:`amorctl.rollout.rollout` on ``tenv.base`` (one env); this adds the
+    The stepping is :func:`amorctl.analysis.rollout.rollout` on ``tenv.base`` (one env); this adds the
     world body poses of the character and of the reference, from the recorded ``qpos`` and
     reference frames, for the MCAP log and the plot.
 
@@ -344,7 +344,7 @@ def run_tune(
     Returns:
         the recorded :class:`TuneRollout` (T = ceil(seconds / dt) steps, fewer after a fall).
     """
-    from amorctl.rollout import rollout
+    from amorctl.analysis.rollout import rollout
 
     seconds = tenv.motion_seconds if seconds is None else float(seconds)
     if not np.isfinite(seconds) or seconds <= 0:
