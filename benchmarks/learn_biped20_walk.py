@@ -34,13 +34,15 @@ import numpy as np
 import tomllib
 
 from amorctl.core.config import load_config, load_preset, merge, override
+from amorctl.envs.factory import make_env
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.clips import MotionLibrary
 from amorctl.motion.dataset import load_dataset, write_dataset
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
 from amorctl.registry import get_registry
-from amorctl.train.loop import CHECKPOINT_DIR, latest_checkpoint, make_env, train_run
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import CHECKPOINT_DIR, RunDir
 
 WALKING = ("walk", "walker/")
 
@@ -184,7 +186,7 @@ def main() -> None:
         seed=1,
     )
     trainer = TorchCpuBackend().make_trainer(make_env(override(config, env__num_envs=4)), config)
-    trainer.load_state_dict(latest_checkpoint(args.out).trainer)
+    trainer.load_state_dict(RunDir(args.out).checkpoint().trainer)
     surv, err_policy = evaluate(env, lambda o: trainer.act(o), steps)
 
     def replay(_obs: np.ndarray) -> np.ndarray:

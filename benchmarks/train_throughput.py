@@ -19,8 +19,8 @@ import statistics
 import torch
 
 from amorctl.core.config import load_preset, override
+from amorctl.envs.factory import make_env
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
-from amorctl.train.loop import make_env
 
 
 def measure(preset: str, bf16: bool, iterations: int, num_envs: int | None) -> dict[str, float]:

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from amorctl.core.config import TrainConfig, merge
-from amorctl.core.contracts import SnapshotEnv, State
+from amorctl.core.contracts import Snapshot, SnapshotEnv
 from amorctl.core.errors import AmorError
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
@@ -55,9 +55,9 @@ def _roll(env: TrackingEnv, actions: np.ndarray) -> list[dict[str, np.ndarray]]:
     return out
 
 
-def _through_files(state: State, directory: Path) -> State:
+def _through_files(state: Snapshot, directory: Path) -> Snapshot:
     """The state as a checkpoint stores and reloads it (safetensors + JSON)."""
-    path = save_checkpoint(directory, 1, {}, State(), state)
+    path = save_checkpoint(directory, 1, {}, Snapshot(), state)
     loaded = load_checkpoint(path).env
     assert loaded is not None
     return loaded

@@ -23,7 +23,7 @@ from amorctl.cli.main import main
 from amorctl.core.errors import AmorError
 from amorctl.core.weights import sample_dirichlet
 from amorctl.envs.toy import ToyTradeoffEnv
-from amorctl.train.loop import load_policy
+from amorctl.train.rundir import RunDir
 
 torch.set_num_threads(1)
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -172,7 +172,7 @@ def test_sampled_front_matches_the_known_toy_front() -> None:
 
 
 def test_trained_toy_front_is_near_the_true_front(toy_run: Path) -> None:
-    policy, _, _ = load_policy(toy_run)
+    policy = RunDir(toy_run).policy()
     k, steps = 32, 15
     w = np.vstack([sample_dirichlet(np.random.default_rng(0), k, 2), [[1.0, 0.0], [0.0, 1.0]]]).astype(float)
     w /= w.sum(axis=1, keepdims=True)
@@ -187,7 +187,7 @@ def test_trained_toy_front_is_near_the_true_front(toy_run: Path) -> None:
 
 
 def test_weight_sweep_yields_positive_rank_correlation(toy_run: Path) -> None:
-    policy, config, _ = load_policy(toy_run)
+    policy, config = RunDir(toy_run).policy(), RunDir(toy_run).config
     sweep = weight_sweep(policy, config, "right", levels=(0.0, 0.25, 0.5, 0.75, 1.0), episodes=8)
     assert sweep.returns.shape == (5, 8)
     assert sweep.spearman_rho > 0.5 and sweep.spearman_p < 0.01

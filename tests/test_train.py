@@ -17,11 +17,13 @@ import torch
 
 from amorctl.cli.main import main
 from amorctl.core.config import TrainConfig, override
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.envs.factory import make_env
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
 from amorctl.train.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
-from amorctl.train.loop import check_compatible, make_env, train_run
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import RunDir, check_compatible
 
 torch.set_num_threads(1)
 
@@ -251,17 +253,18 @@ def test_checkpoint_of_another_character_is_refused() -> None:
         "action_dim": env.action_dim,
         "backend": "torch-cpu",
     }
-    ckpt = Checkpoint(Path("runs/x/checkpoints/iter_000010.json"), 10, meta, State(), None)
+    ckpt = Checkpoint(Path("runs/x/checkpoints/iter_000010.json"), 10, meta, Snapshot(), None)
     with pytest.raises(AmorError, match="character 'humanoid36', this run has 'biped20'"):
         check_compatible(ckpt, config, env)
 
 
 def test_load_policy_reproduces_the_trainers_actions(tmp_path: Path) -> None:
-    from amorctl.train.loop import load_policy
 
     out = tmp_path / "run"
     train_run(tiny(run__iterations=2), out)
-    policy, config, ckpt = load_policy(out)
+    run = RunDir(out)
+    ckpt = run.checkpoint()
+    policy, config = run.policy_of(ckpt), run.config
     assert ckpt.iteration == 2 and policy.objectives == ("right", "left")
     backend = TorchCpuBackend()
     trainer = backend.make_trainer(make_env(config), config)

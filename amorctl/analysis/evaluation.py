@@ -24,13 +24,14 @@ import numpy as np
 from amorctl.analysis.front import FrontSummary, HypervolumeMethod, summarize_front
 from amorctl.analysis.rollout import Rollout, WeightsSource, rollout, tracking_env
 from amorctl.core.config import TrainConfig
+from amorctl.core.contracts import Policy
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
 from amorctl.core.vecenv import VectorEnv
 from amorctl.core.weights import format_weights
+from amorctl.envs.factory import make_env
 from amorctl.motion.resolve import resolve_name
-from amorctl.train.checkpoint import list_checkpoints
-from amorctl.train.loop import CHECKPOINT_DIR, CONFIG_FILE, load_policy, make_env
+from amorctl.train.rundir import RunDir
 
 ALL_MOTIONS = "all"  # the group name when no --motion is given (episodes draw clips at random)
 JOINT_GROUP_LABELS = {"upper": "up", "lower": "lo", "feet": "feet"}
@@ -40,18 +41,10 @@ Progress = Callable[[int, int], None]
 
 
 # ---------------------------------------------------------------------------- run and env
-def open_run(run: Path) -> tuple[Any, TrainConfig]:
-    """The newest checkpoint's deterministic policy and the config of the run in ``run``.
-
-    Raises:
-        AmorError: ``run`` is not a run directory, or it has no checkpoint yet.
-    """
-    if not (run / CONFIG_FILE).is_file():
-        raise AmorError(f"{run}: not a run directory ({CONFIG_FILE} not found)")
-    if not list_checkpoints(run / CHECKPOINT_DIR):
-        raise AmorError(f"{run}: the run has no checkpoint yet ({run / CHECKPOINT_DIR} is empty or missing)")
-    policy, config, _ = load_policy(run)
-    return policy, config
+def open_run(run: Path) -> tuple[Policy, TrainConfig]:
+    """The newest checkpoint's policy and the config of the run in ``run`` (see :class:`RunDir`)."""
+    opened = RunDir.open(run)
+    return opened.policy(), opened.config
 
 
 def check_objective(name: str, names: Sequence[str]) -> int:

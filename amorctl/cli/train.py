@@ -17,7 +17,8 @@ from amorctl.cli.output import console, print_json
 from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
-from amorctl.train.loop import load_run_config, train_run
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import RunDir
 
 
 def _fmt_time(seconds: float) -> str:
@@ -124,7 +125,7 @@ def _resume_config(
     """The run's own config; only ``--iterations`` may change, anything else must agree."""
     if preset is not None or config_file is not None:
         raise AmorError("--resume continues with the run's own config.toml; drop --preset/--config")
-    config = load_run_config(out)
+    config = RunDir(out).config
     for section, values in overrides.items():
         for key, value in values.items():
             if section == "run" and key == "iterations":

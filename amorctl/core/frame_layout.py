@@ -14,7 +14,7 @@ All functions take the array namespace ``xp`` (numpy or jax.numpy).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -152,20 +152,3 @@ class TrackingInputs:
     pd_target_prev: Any
     pd_target_prev2: Any
     joint_acc: Any
-
-
-class ObjectiveFunction(Protocol):
-    """What ``ObjectiveSetSpec.make(character)`` returns for the tracking environment.
-
-    ``names``/``descriptions`` index the m objectives; ``low``/``high`` [m] bound one step's
-    reward; calling it returns r [N, m] (weights are never applied here).
-    """
-
-    names: tuple[str, ...]
-    descriptions: tuple[str, ...]
-    low: np.ndarray
-    high: np.ndarray
-
-    def __call__(self, inputs: TrackingInputs, alive: Any, xp: Any = np) -> Any:
-        """r [N, m] for one transition; ``alive`` [N] is 1.0 where the step did not terminate."""
-        ...

@@ -10,7 +10,10 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Literal
+
+if TYPE_CHECKING:
+    from amorctl.core.contracts import Backend, ObjectiveSet
 
 JointGroup = Literal["upper", "lower", "feet"]
 JOINT_GROUPS: tuple[JointGroup, ...] = ("upper", "lower", "feet")
@@ -103,24 +106,13 @@ class ObjectiveSetSpec:
     name: str
     description: str
     objectives: tuple[str, ...]
-    make: Callable[[CharacterSpec], Any]
-
-
-@runtime_checkable
-class Backend(Protocol):
-    """What a training backend provides. The trainer and the evaluation commands use only this."""
-
-    name: str
-
-    def make_env(self, **kwargs: Any) -> Any:
-        """A batched, Gymnasium-style vector environment."""
-        ...
+    make: Callable[[CharacterSpec], ObjectiveSet]
 
 
 @dataclass(frozen=True)
 class BackendSpec:
-    """A backend plugin: ``make(**options)`` returns an object following :class:`Backend`."""
+    """A backend plugin: ``make(**options)`` returns a :class:`~amorctl.core.contracts.Backend`."""
 
     name: str
     description: str
-    make: Callable[..., Any]
+    make: Callable[..., Backend]

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weights import sample_dirichlet
 
@@ -98,12 +98,12 @@ class _ToyEnv(ABC):
             self._start(ended)
         return self._obs(), rewards, terminated, truncated, {"final_obs": final_obs}
 
-    def get_state(self) -> State:
+    def get_state(self) -> Snapshot:
         """Everything the next step depends on: generator state, s, the second number, t, w."""
         arrays = {"s": self.s, self.second: getattr(self, self.second), "t": self.t, "w": self._w}
-        return State({k: v.copy() for k, v in arrays.items()}, {"rng": self.rng.bit_generator.state})
+        return Snapshot({k: v.copy() for k, v in arrays.items()}, {"rng": self.rng.bit_generator.state})
 
-    def set_state(self, state: State) -> None:
+    def set_state(self, state: Snapshot) -> None:
         """Restore :meth:`get_state`."""
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = state.meta["rng"]

@@ -19,7 +19,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features, split_frame
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
@@ -285,7 +285,7 @@ class TrackingEnv:
         "joint_vel_prev", "ee_pos", "ee_quat", "ee_lin_vel",
     )  # fmt: skip
 
-    def get_state(self) -> State:
+    def get_state(self) -> Snapshot:
         """Everything the next :meth:`step` depends on, as arrays plus JSON-ready metadata.
 
         Arrays: :attr:`SNAPSHOT_ARRAYS` (reference frame index, clip end and id, episode step
@@ -306,9 +306,9 @@ class TrackingEnv:
             "env_clips": None if self.env_clips is None else [int(c) for c in self.env_clips],
             "from_start": self.from_start,
         }
-        return State(arrays, meta)
+        return Snapshot(arrays, meta)
 
-    def set_state(self, state: State) -> None:
+    def set_state(self, state: Snapshot) -> None:
         """Restore :meth:`get_state` (taken from an env built with the same arguments).
 
         Raises:

@@ -21,7 +21,7 @@ import numpy as np
 from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_path, atomic_write_text
 
@@ -36,8 +36,8 @@ class Checkpoint:
     path: Path  # the JSON file
     iteration: int
     meta: dict[str, Any]  # run metadata: character, backend, objectives, config kind, ...
-    trainer: State
-    env: State | None  # None when the env could not snapshot itself
+    trainer: Snapshot
+    env: Snapshot | None  # None when the env could not snapshot itself
 
 
 def checkpoint_paths(directory: Path, iteration: int) -> tuple[Path, Path]:
@@ -55,7 +55,7 @@ def _sha256(path: Path) -> str:
 
 
 def save_checkpoint(
-    directory: Path, iteration: int, meta: dict[str, Any], trainer: State, env: State | None
+    directory: Path, iteration: int, meta: dict[str, Any], trainer: Snapshot, env: Snapshot | None
 ) -> Path:
     """Write a checkpoint atomically; returns the JSON path."""
     tensors_path, json_path = checkpoint_paths(directory, iteration)
@@ -118,12 +118,12 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
         arrays = load_file(str(tensors_path))
     except (SafetensorError, OSError, ValueError) as exc:
         raise AmorError(f"{tensors_path}: not a valid safetensors file: {exc}") from None
-    trainer = State(
+    trainer = Snapshot(
         {k[8:]: v for k, v in arrays.items() if k.startswith("trainer/")}, record.get("trainer") or {}
     )
     env = None
     if record.get("env") is not None:
-        env = State({k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, record["env"])
+        env = Snapshot({k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, record["env"])
     meta = {k: v for k, v in record.items() if k not in ("trainer", "env", "tensors", "format")}
     return Checkpoint(json_path, int(record["iteration"]), meta, trainer, env)
 

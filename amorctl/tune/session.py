@@ -24,8 +24,9 @@ import numpy as np
 from amorctl.analysis.rollout import tracking_env
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
+from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
 from amorctl.envs.wrappers import FixedWeights
-from amorctl.train.loop import TOY_CONTROL_HZ, check_compatible, load_policy, make_env
+from amorctl.train.rundir import RunDir, check_compatible
 
 # ---------------------------------------------------------------------------- one pinned env
 
@@ -83,9 +84,10 @@ class TuneEnv:
 
     def __init__(self, run_dir: str | Path, motion: str | None = None, seed: int = 0) -> None:
         self.run_dir = Path(run_dir)
-        if not self.run_dir.is_dir():
-            raise AmorError(f"{self.run_dir}: run directory not found")
-        self.policy, config, ckpt = load_policy(self.run_dir)
+        run = RunDir.open(self.run_dir)
+        ckpt = run.checkpoint()
+        self.policy = run.policy_of(ckpt)
+        config = run.config
         env_cfg = dataclasses.replace(config.env, num_envs=1, fixed_weights="")
         self.config = dataclasses.replace(config, env=env_cfg, run=dataclasses.replace(config.run, seed=seed))
         base: Any = make_env(self.config)

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from amorctl.core.config import TrainConfig
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
@@ -60,7 +60,7 @@ class TorchCpuBackend:
         bf16 = config.ppo.precision == "bf16" or (config.ppo.precision == "auto" and bf16_supported())
         return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed, bf16=bf16)
 
-    def load_policy(self, trainer_state: State, config: TrainConfig) -> Any:
+    def load_policy(self, trainer_state: Snapshot, config: TrainConfig) -> Any:
         """A :class:`~amorctl.plugins.backends.torch_cpu.policy.TorchPolicy` from a checkpoint's
         trainer state (inference only: actor, critic, normalizer)."""
         from amorctl.plugins.backends.torch_cpu.policy import TorchPolicy

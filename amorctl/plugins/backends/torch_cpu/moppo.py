@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from amorctl.core.config import NetworkConfig, PPOConfig
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 from amorctl.plugins.backends.torch_cpu.gae import gae
@@ -391,7 +391,7 @@ class MOPPOTrainer:
         """The networks and the normalizer by checkpoint prefix."""
         return {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}
 
-    def state_dict(self) -> State:
+    def state_dict(self) -> Snapshot:
         """Weights, normalizer, Adam state, RNG, current observations and episode statistics."""
         arrays = modules_to_arrays(self._modules())
         optim = self.optimizer.state_dict()
@@ -414,9 +414,9 @@ class MOPPOTrainer:
             "action_dim": self.env.action_dim,
             "objectives": list(self.names),
         }
-        return State(arrays, meta)
+        return Snapshot(arrays, meta)
 
-    def load_state_dict(self, state: State) -> None:
+    def load_state_dict(self, state: Snapshot) -> None:
         """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
         meta, arrays = state.meta, state.arrays
         expect = {

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from amorctl.core.config import NetworkConfig
-from amorctl.core.contracts import State
+from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer, load_modules
 
@@ -22,7 +22,7 @@ class TorchPolicy:
     rounding only).
     """
 
-    def __init__(self, state: State, network: NetworkConfig) -> None:
+    def __init__(self, state: Snapshot, network: NetworkConfig) -> None:
         meta = state.meta
         try:
             obs_dim, action_dim, m = int(meta["obs_dim"]), int(meta["action_dim"]), len(meta["objectives"])

@@ -1,0 +1,53 @@
+"""The env factory: the configured environment of a run (tracking env from its backend, toy, gym)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from amorctl.core.config import TrainConfig
+from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import parse_weights
+from amorctl.registry import get_registry
+
+TOY_CONTROL_HZ = 50  # the toy env's nominal control rate (episode_seconds -> steps)
+
+
+def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
+    """Build the configured env, seeded with ``run.seed``, wrapped for fixed weights if asked.
+
+    ``kind="tracking"`` asks the backend (its ``make_env``) for the motion-tracking env;
+    ``toy``, ``toy-smooth`` and ``gym`` are backend-independent numpy envs.
+    """
+    e, seed = config.env, config.run.seed
+    env: Any
+    if e.kind == "toy":
+        from amorctl.envs.toy import ToyTradeoffEnv
+
+        env = ToyTradeoffEnv(
+            e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed
+        )
+    elif e.kind == "toy-smooth":
+        from amorctl.envs.toy import ToySmoothEnv
+
+        env = ToySmoothEnv(e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed)
+    elif e.kind == "gym":
+        from amorctl.envs.mo_gym import make_gym_env
+
+        env = make_gym_env(e.gym_id, e.num_envs, seed=seed)
+    else:
+        if backend is None:
+            backend = get_registry().backend(config.run.backend).make()
+        env = backend.make_env(
+            character=e.character,
+            dataset=e.dataset or None,
+            objective_set=e.objective_set,
+            num_envs=e.num_envs,
+            episode_seconds=e.episode_seconds,
+            seed=seed,
+            action_mode=e.action_mode,
+        )
+    if e.fixed_weights:
+        from amorctl.envs.wrappers import FixedWeights
+
+        env = FixedWeights(env, parse_weights(e.fixed_weights, env.reward_space.names))
+    return env

@@ -1,0 +1,59 @@
+"""A run's metrics: ``metrics.csv`` (one row per iteration) plus optional TensorBoard scalars."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+from amorctl.core.files import atomic_write_text
+
+METRICS_FILE = "metrics.csv"
+TB_DIR = "tb"
+
+
+class MetricsLog:
+    """metrics.csv (one row per iteration) plus optional TensorBoard scalars."""
+
+    def __init__(self, out: Path, tensorboard: bool, resume_from: int | None) -> None:
+        self.path = out / METRICS_FILE
+        self.columns: list[str] | None = None
+        if resume_from is not None and self.path.is_file():  # forget iterations after the checkpoint
+            rows = list(csv.DictReader(self.path.open(newline="", encoding="utf-8")))
+            if rows:
+                self.columns = list(rows[0])
+                kept = [r for r in rows if float(r["iteration"]) <= resume_from]
+                buf = io.StringIO()
+                writer = csv.DictWriter(buf, self.columns)
+                writer.writeheader()
+                writer.writerows(kept)
+                atomic_write_text(self.path, buf.getvalue())
+        elif self.path.exists():
+            self.path.unlink()
+        self.tb: Any = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter
+
+            purge = None if resume_from is None else resume_from + 1
+            self.tb = SummaryWriter(str(out / TB_DIR), purge_step=purge)
+
+    def write(self, metrics: dict[str, float]) -> None:
+        step = int(metrics["iteration"])
+        if self.columns is None:
+            self.columns = list(metrics)
+        new = not self.path.exists()
+        with self.path.open("a", newline="", encoding="utf-8") as f:
+            writer = csv.DictWriter(f, self.columns, extrasaction="ignore")
+            if new:
+                writer.writeheader()
+            writer.writerow({k: repr(float(metrics.get(k, math.nan))) for k in self.columns})
+        if self.tb is not None:
+            for key, value in metrics.items():
+                if key != "iteration" and math.isfinite(value):
+                    self.tb.add_scalar(key, value, step)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.close()

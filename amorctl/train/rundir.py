@@ -1,0 +1,193 @@
+"""A run directory as one object: resolved config, checkpoints, metrics, the trained policy.
+
+``runs/<name>/`` holds:
+
+- ``config.toml``: the fully resolved config (written once, at the start);
+- ``checkpoints/iter_NNNNNN.{safetensors,json}``: see :mod:`amorctl.train.checkpoint`;
+- ``metrics.csv``: one row per iteration; ``tb/``: the same as TensorBoard scalars.
+
+Every command that opens a run (train --resume, pareto, evaluate, tune, hlp, deploy) does it
+through :class:`RunDir`, so a missing, half-written or mismatched run is reported in one place.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+from amorctl import __version__
+from amorctl.core.config import TrainConfig, load_config
+from amorctl.core.contracts import Backend, Policy
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
+from amorctl.envs.factory import make_env
+from amorctl.registry import get_registry
+from amorctl.train.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
+from amorctl.train.metrics import METRICS_FILE, TB_DIR
+
+CONFIG_FILE = "config.toml"
+CHECKPOINT_DIR = "checkpoints"
+
+#: checkpoint metadata that must match the run it is loaded into
+COMPATIBILITY_KEYS = ("env_kind", "character", "gym_id", "objectives", "obs_dim", "action_dim", "backend")
+
+
+class RunDir:
+    """One training run's directory.
+
+    Args:
+        path: the directory (it need not exist yet for a new run).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    # --- files --------------------------------------------------------------------------------
+    @property
+    def config_path(self) -> Path:
+        return self.path / CONFIG_FILE
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / CHECKPOINT_DIR
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / METRICS_FILE
+
+    @property
+    def tensorboard_dir(self) -> Path:
+        return self.path / TB_DIR
+
+    def exists(self) -> bool:
+        """Whether the directory holds a run (a config or a checkpoint)."""
+        return self.config_path.exists() or bool(self.checkpoints())
+
+    # --- opening ------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path: str | Path, *, need_checkpoint: bool = True) -> RunDir:
+        """An existing run; checks it has a config (and a checkpoint unless told otherwise).
+
+        Raises:
+            AmorError: ``path`` is not a directory, has no ``config.toml``, or no checkpoint.
+        """
+        run = cls(path)
+        if not run.path.is_dir():
+            raise AmorError(f"{run.path}: not a run directory (run directory not found)")
+        if not run.config_path.is_file():
+            raise AmorError(f"{run.path}: not a run directory ({CONFIG_FILE} not found)")
+        if need_checkpoint and not run.checkpoints():
+            raise AmorError(f"{run.checkpoint_dir}: no checkpoint yet (the run has not saved one)")
+        return run
+
+    @cached_property
+    def config(self) -> TrainConfig:
+        """The run's resolved config. Raises AmorError if there is none or it is invalid."""
+        if not self.config_path.is_file():
+            raise AmorError(f"{self.path}: no run to resume or open ({CONFIG_FILE} not found)")
+        return load_config(self.config_path)
+
+    # --- checkpoints --------------------------------------------------------------------------
+    def checkpoints(self) -> list[tuple[int, Path]]:
+        """(iteration, JSON path) of every checkpoint, oldest first."""
+        return list_checkpoints(self.checkpoint_dir)
+
+    def checkpoint(self, iteration: int | None = None) -> Checkpoint:
+        """Load the checkpoint of ``iteration`` (None: the newest), verified.
+
+        Raises:
+            AmorError: there is none, that iteration has none, or it is damaged (the message names
+                an older one to fall back to when there is one).
+        """
+        found = self.checkpoints()
+        if not found:
+            raise AmorError(f"{self.checkpoint_dir}: no checkpoint to resume from or load")
+        if iteration is not None:
+            paths = dict(found)
+            if iteration not in paths:
+                have = ", ".join(str(i) for i, _ in found)
+                raise AmorError(f"{self.path}: no checkpoint of iteration {iteration} (have: {have})")
+            return load_checkpoint(paths[iteration])
+        path = found[-1][1]
+        try:
+            return load_checkpoint(path)
+        except AmorError as err:
+            older = (
+                f"; an older checkpoint exists (iteration {found[-2][0]}): delete {path.name} and its "
+                ".safetensors to resume from it"
+                if len(found) > 1
+                else ""
+            )
+            raise AmorError(f"{err}{older}") from None
+
+    # --- what a run makes ---------------------------------------------------------------------
+    def backend(self, config: TrainConfig | None = None) -> Backend:
+        """The run's backend (``run.backend`` of its config), from the registry."""
+        cfg = config or self.config
+        return get_registry().backend(cfg.run.backend).make()
+
+    def env(self, *, num_envs: int | None = None, seed: int | None = None, **env_overrides: Any) -> VectorEnv:
+        """The run's env rebuilt from its config, optionally resized / reseeded / changed
+        (``env_overrides`` are fields of the config's ``[env]`` table)."""
+        return make_env(self.env_config(num_envs=num_envs, seed=seed, **env_overrides), self.backend())
+
+    def env_config(
+        self, *, num_envs: int | None = None, seed: int | None = None, **env_overrides: Any
+    ) -> TrainConfig:
+        """The run's config with ``[env]`` fields and the seed replaced."""
+        cfg = self.config
+        env_fields = dict(env_overrides)
+        if num_envs is not None:
+            env_fields["num_envs"] = int(num_envs)
+        run = cfg.run if seed is None else dataclasses.replace(cfg.run, seed=int(seed))
+        return dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, **env_fields), run=run)
+
+    def policy(self, iteration: int | None = None) -> Policy:
+        """The :class:`~amorctl.core.contracts.Policy` of a checkpoint (None: the newest), checked
+        against the run's config (objectives, sizes)."""
+        ckpt = self.checkpoint(iteration)
+        return self.policy_of(ckpt)
+
+    def policy_of(self, ckpt: Checkpoint) -> Policy:
+        """The policy of an already loaded checkpoint of this run."""
+        config = self.config
+        for key, want in (("backend", config.run.backend), ("env_kind", config.env.kind)):
+            if ckpt.meta.get(key) != want:
+                raise AmorError(
+                    f"{ckpt.path}: checkpoint was made for {key.replace('_', ' ')} {ckpt.meta.get(key)!r}, "
+                    f"the run's config ({self.config_path}) has {want!r}"
+                )
+        return self.backend().load_policy(ckpt.trainer, config)
+
+
+def run_meta(config: TrainConfig, env: VectorEnv) -> dict[str, Any]:
+    """The metadata every checkpoint of a run carries (checked on resume and on load)."""
+    e = config.env
+    return {
+        "amorctl_version": __version__,
+        "backend": config.run.backend,
+        "env_kind": e.kind,
+        "character": e.character if e.kind == "tracking" else None,
+        "gym_id": e.gym_id if e.kind == "gym" else None,
+        "objectives": list(env.reward_space.names),
+        "obs_dim": env.obs_dim,
+        "action_dim": env.action_dim,
+        "fixed_weights": e.fixed_weights,
+    }
+
+
+def check_compatible(ckpt: Checkpoint, config: TrainConfig, env: VectorEnv) -> None:
+    """Raise AmorError if a checkpoint was made for another env, character or objective set."""
+    expected = run_meta(config, env)
+    for key in COMPATIBILITY_KEYS:
+        if ckpt.meta.get(key) != expected[key]:
+            what = key.replace("_", " ")
+            raise AmorError(
+                f"{ckpt.path}: checkpoint was made for {what} {ckpt.meta.get(key)!r}, "
+                f"this run has {expected[key]!r}"
+            )
