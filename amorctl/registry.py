@@ -1,8 +1,10 @@
 """The plugin registry: pluggy hookspecs, entry-point loading, lookup by name.
 
 Every plugin, built-in or third-party, is a module named by an entry point in the ``amorctl``
-group. It implements one or more of the hooks below; each hook receives a ``register`` callback
-and calls it once per thing it provides (register-callback style, as in ``llm``).
+group. It implements one or more of the four hooks below (characters, objective sets, backends,
+motion formats); each hook receives a ``register`` callback and calls it once per thing it
+provides (register-callback style, as in ``llm``). Plugin authors import ``hookimpl`` and the
+spec types from :mod:`amorctl.api`.
 
 Environment variables:
     AMORCTL_BLOCK_PLUGINS  comma-separated entry-point names (or distribution names) not to load.
@@ -22,7 +24,7 @@ from typing import Any
 import pluggy
 
 from amorctl.core.errors import AmorError
-from amorctl.core.specs import BackendSpec, CharacterSpec, ObjectiveSetSpec
+from amorctl.core.specs import BackendSpec, CharacterSpec, MotionFormatSpec, ObjectiveSetSpec
 
 PROJECT = "amorctl"
 ENTRY_POINT_GROUP = "amorctl"
@@ -48,12 +50,18 @@ class HookSpecs:
     def amorctl_register_backends(self, register: Callable[[BackendSpec], None]) -> None:
         """Call ``register(spec)`` once for every :class:`BackendSpec` this plugin provides."""
 
+    @hookspec
+    def amorctl_register_motion_formats(self, register: Callable[[MotionFormatSpec], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`MotionFormatSpec` (file importer) this
+        plugin provides; ``amorctl preprocess`` picks one by ``--format`` or by file suffix."""
+
 
 #: plugin kind -> (hook name, spec type)
 KINDS: dict[str, tuple[str, type]] = {
     "character": ("amorctl_register_characters", CharacterSpec),
     "objective-set": ("amorctl_register_objective_sets", ObjectiveSetSpec),
     "backend": ("amorctl_register_backends", BackendSpec),
+    "motion-format": ("amorctl_register_motion_formats", MotionFormatSpec),
 }
 
 
@@ -106,6 +114,9 @@ class Registry:
 
     def backend(self, name: str) -> BackendSpec:
         return self.get("backend", name)
+
+    def motion_format(self, name: str) -> MotionFormatSpec:
+        return self.get("motion-format", name)
 
 
 def _blocked_names() -> set[str]:

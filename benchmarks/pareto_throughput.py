@@ -26,10 +26,13 @@ from typing import Any
 
 import torch
 
-from amorctl.analysis.evaluation import make_eval_env, open_run, sample_weights
-from amorctl.analysis.rollout import rollout, tracking_env
+from amorctl.analysis.eval_env import make_eval_env, sweep_weights
+from amorctl.analysis.rollout import rollout
 from amorctl.core.config import TrainConfig, load_preset
+from amorctl.envs.tracking_env import TrackingEnv
+from amorctl.envs.wrappers import FixedWeights
 from amorctl.registry import get_registry
+from amorctl.train.rundir import RunDir
 
 
 def untrained_policy(config: TrainConfig, env: Any) -> Any:
@@ -58,17 +61,20 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     if args.run is not None:
-        policy, config = open_run(args.run)
+        opened = RunDir.open(args.run)
+        policy, config = opened.policy(), opened.config
     else:
         policy, config = None, load_preset(args.preset)
     config = dataclasses.replace(config, env=dataclasses.replace(config.env, episode_seconds=args.seconds))
     env, _ = make_eval_env(config, args.samples, seed=args.seed)
-    inner = tracking_env(env)
-    if inner is None:
-        raise SystemExit("this benchmark needs a motion-tracking run or preset")
+    # the physics-only bound below steps the torch-cpu env's own simulation: this benchmark
+    # measures that backend, so it (unlike analysis code) opens the concrete env
+    inner = env.env if isinstance(env, FixedWeights) else env
+    if not isinstance(inner, TrackingEnv):
+        raise SystemExit("this benchmark needs a torch-cpu motion-tracking run or preset")
     if policy is None:
         policy = untrained_policy(config, env)
-    weights, _ = sample_weights(len(env.reward_space.names), args.samples, seed=args.seed)
+    weights, _ = sweep_weights(len(env.reward_space.names), args.samples, seed=args.seed)
 
     # --- the sweep: one batched rollout, one episode per env ---------------------------------
     env.reset(seed=args.seed)

@@ -272,3 +272,22 @@ def test_biped20_holds_its_standing_pose_for_5_s_through_the_servo_model() -> No
     assert min(heights) > spec.min_standing_height
     up = data.xmat[model.body(spec.root_body).id].reshape(3, 3)[:, 2]
     assert up[2] > np.cos(np.radians(10))  # still upright
+
+
+@pytest.mark.parametrize("name", ["humanoid36", "biped20", "stickman12"])
+def test_one_compiler_kinematics_and_simulation_see_the_same_model(name: str) -> None:
+    """``load_model`` (kinematics, retargeting) and ``build_model`` (the batched simulation) are one
+    compiler: the simulation's model only adds amorctl's sensors."""
+    from amorctl.sim.batch_sim import build_model
+
+    spec = get_registry().character(name)
+    plain, sim = load_model(spec), build_model(spec)
+    for field in ("nq", "nv", "nu", "nbody", "njnt", "ngeom"):
+        assert getattr(plain, field) == getattr(sim, field), field
+    arrays = ("body_mass", "body_inertia", "dof_armature", "dof_damping", "actuator_gainprm", "geom_size")
+    for array in arrays:
+        np.testing.assert_array_equal(getattr(plain, array), getattr(sim, array), err_msg=array)
+    assert plain.opt.timestep == sim.opt.timestep == 1.0 / spec.physics_hz
+    extra = 3 * len(spec.end_effectors) + (spec.num_joints if spec.actuator.kind == "pd" else 0)
+    assert sim.nsensor - plain.nsensor == extra
+    assert plain.body_mass.sum() > 0.5

@@ -31,6 +31,7 @@ def test_plugins_json_lists_builtins_and_the_third_party_package(capsys: pytest.
     rows = {(p["name"], p["kind"]): p for p in json.loads(out)["plugins"]}
     assert rows[("humanoid36", "character")]["package"] == "amorctl"
     assert rows[("biped20", "character")]["package"] == "amorctl"
+    assert {rows[(f, "motion-format")]["package"] for f in ("deepmimic", "bvh", "npz")} == {"amorctl"}
     third = rows[("stickman12", "character")]
     assert (third["package"], third["version"]) == ("amorctl-stickman", "0.2.0")
 

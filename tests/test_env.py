@@ -8,11 +8,14 @@ import mujoco
 import numpy as np
 import pytest
 
+from amorctl.core.contracts import TrackingView, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import frame_dim
 from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import sample_dirichlet
 from amorctl.envs.synthetic import synthetic_library
-from amorctl.envs.tracking_env import TrackingEnv, sample_weights
+from amorctl.envs.tracking_env import TrackingEnv
+from amorctl.envs.wrappers import FixedWeights
 from amorctl.registry import get_registry
 from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
 
@@ -126,7 +129,7 @@ def test_seed_determinism() -> None:
 
 
 def test_dirichlet_weights_on_simplex_with_mean_one_over_m() -> None:
-    w = sample_weights(np.random.default_rng(0), 20000, 7)
+    w = sample_dirichlet(np.random.default_rng(0), 20000, 7)
     assert w.shape == (20000, 7) and w.dtype == np.float32
     assert (w >= 0).all()
     np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-5)
@@ -135,6 +138,68 @@ def test_dirichlet_weights_on_simplex_with_mean_one_over_m() -> None:
     env.reset(seed=1)
     np.testing.assert_allclose(env.weights.sum(axis=1), 1.0, atol=1e-5)
     assert len(np.unique(env.weights[:, 0])) == 64
+
+
+def test_env_weights_are_the_shared_dirichlet_sampler_bit_for_bit() -> None:
+    env, _ = _make(_pd_character(), num_envs=5)
+    env.reset(seed=4)
+    # the env's first draw after RSI's clip and frame draws: replay them on a twin generator
+    rng = np.random.default_rng(4)
+    rng.integers(len(env.all_valid_clips), size=5)
+    rng.integers(0, env.clip_ends[env.clip_id] - env.clip_starts[env.clip_id] - 1)
+    want = rng.dirichlet(np.ones(env.m), size=5).astype(np.float32)
+    np.testing.assert_array_equal(env.weights, want)
+
+
+def test_tracking_view_reads_the_env_and_forwards_through_fixed_weights() -> None:
+    ch = _pd_character()
+    env, lib = _make(ch, num_envs=3, max_episode_steps=50)
+    view = tracking_view(env)
+    assert isinstance(view, TrackingView)
+    env.reset(seed=2)
+    env.step(lib.joint_pos[env.ref_idx + 1])
+    np.testing.assert_array_equal(view.reference_index(), env.ref_idx)
+    np.testing.assert_array_equal(view.clip_index(), env.clip_id)
+    assert view.clip_names == tuple(c.name for c in lib.clips)
+    np.testing.assert_array_equal(view.clip_frame_counts, lib.lengths)
+    np.testing.assert_allclose(view.clip_seconds, [lib.clip_duration(c) for c in lib.clips])
+    assert view.joint_names == ch.joint_names() and view.dt == env.dt and view.num_envs == 3
+    assert view.max_episode_steps == 50 and view.model.nq == env.sim.model.nq
+    assert {k: slice(*v) for k, v in view.observation_layout.items()} == env.obs_layout
+    np.testing.assert_array_equal(view.qpos(), env.sim.qpos)
+    np.testing.assert_array_equal(view.joint_pos(), env.sim.joint_pos())
+    np.testing.assert_array_equal(view.joint_vel(), env.sim.joint_vel())
+    obs = env._observe()
+    p = view.observation_layout["proprio"]
+    proprio_ee = obs[:, p[0] : p[1]][:, 13 + 2 * ch.num_joints :][:, : 9 * len(ch.end_effectors)]
+    np.testing.assert_allclose(view.end_effector_pos(), proprio_ee.reshape(3, -1, 9)[:, :, :3], atol=1e-5)
+    f = view.reference_index()
+    np.testing.assert_array_equal(view.reference_frames(f), env.ref_frames[f])
+    np.testing.assert_array_equal(view.reference_joint_pos(f), lib.joint_pos[f])
+    ref_q = view.reference_qpos(f)
+    assert ref_q.shape == (3, env.sim.model.nq)
+    np.testing.assert_array_equal(ref_q[:, env.sim.joint_qpos], lib.joint_pos[f])
+    np.testing.assert_array_equal(ref_q[:, :3], lib.root_pos[f])
+    view.qpos()[:] = 0.0  # copies: the env is untouched
+    assert np.abs(env.sim.qpos).sum() > 0
+    view.select_clips(env_clips=np.array([1, 1, 1]), from_start=True)
+    env.reset(seed=0)
+    np.testing.assert_array_equal(view.clip_index(), [1, 1, 1])
+    np.testing.assert_array_equal(view.reference_index(), lib.starts[[1, 1, 1]])
+
+    wrapped = FixedWeights(env, np.eye(env.m)[0])
+    wview = tracking_view(wrapped)
+    assert isinstance(wview, TrackingView)
+    np.testing.assert_array_equal(wview.weights, np.tile(np.eye(env.m, dtype=np.float32)[0], (3, 1)))
+    np.testing.assert_array_equal(wview.reference_index(), view.reference_index())
+
+
+def test_envs_without_motions_have_no_tracking_view() -> None:
+    from amorctl.envs.toy import ToyTradeoffEnv
+
+    toy = ToyTradeoffEnv(4, max_steps=5)
+    assert tracking_view(toy) is None
+    assert tracking_view(FixedWeights(toy, np.array([0.5, 0.5]))) is None
 
 
 def test_fixed_weights_and_validation() -> None:

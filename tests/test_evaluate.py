@@ -10,15 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.analysis.evaluation import (
-    parse_reference_point,
-    sweep_levels_weights,
-    tracking_metrics,
-    weight_sweep,
-)
 from amorctl.analysis.front import hypervolume
 from amorctl.analysis.rollout import Episodes, Rollout, rollout
 from amorctl.analysis.schemas import EVALUATE_JSON_SCHEMA, PARETO_JSON_SCHEMA
+from amorctl.analysis.sweeps import parse_reference_point, sweep_levels_weights, weight_sweep
+from amorctl.analysis.tracking_metrics import tracking_metrics
 from amorctl.cli.main import main
 from amorctl.core.errors import AmorError
 from amorctl.core.weights import sample_dirichlet

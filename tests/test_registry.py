@@ -6,10 +6,19 @@ import types
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from amorctl.core.errors import AmorError
-from amorctl.core.specs import ActuatorModel, BackendSpec, CharacterSpec, JointSpec, ObjectiveSetSpec
+from amorctl.core.specs import (
+    ActuatorModel,
+    BackendSpec,
+    CharacterSpec,
+    ImportOptions,
+    JointSpec,
+    MotionFormatSpec,
+    ObjectiveSetSpec,
+)
 from amorctl.registry import HookSpecs, hookimpl, load_registry
 
 
@@ -68,6 +77,7 @@ def test_every_hook_is_documented_and_one_per_kind() -> None:
     assert sorted(hooks) == [
         "amorctl_register_backends",
         "amorctl_register_characters",
+        "amorctl_register_motion_formats",
         "amorctl_register_objective_sets",
     ]
     for name in hooks:
@@ -77,20 +87,24 @@ def test_every_hook_is_documented_and_one_per_kind() -> None:
 def test_fake_plugins_of_every_kind_register() -> None:
     objective_set = ObjectiveSetSpec("fake7", "fake objectives", ("a", "b"), make=lambda c: None)
     backend = BackendSpec("fake-backend", "fake backend", make=lambda **kw: None)
+    fmt = MotionFormatSpec("fakefmt", (".fake",), load=lambda path, options: None)
     plugin = _plugin(
         amorctl_register_characters=lambda register: register(_character("fakechar")),
         amorctl_register_objective_sets=lambda register: register(objective_set),
         amorctl_register_backends=lambda register: register(backend),
+        amorctl_register_motion_formats=lambda register: register(fmt),
     )
     registry = load_registry(eps=[_ep("fakeplugin", plugin, "fake-pkg", "9.9")])
     assert registry.names("character") == ["fakechar"]
     assert registry.objective_set("fake7") is objective_set
     assert registry.backend("fake-backend") is backend
+    assert registry.motion_format("fakefmt") is fmt
     rows = {(p.name, p.kind, p.package, p.version) for p in registry.provided}
     assert rows == {
         ("fakechar", "character", "fake-pkg", "9.9"),
         ("fake7", "objective-set", "fake-pkg", "9.9"),
         ("fake-backend", "backend", "fake-pkg", "9.9"),
+        ("fakefmt", "motion-format", "fake-pkg", "9.9"),
     }
 
 
@@ -178,5 +192,90 @@ def test_registering_the_wrong_type_is_reported() -> None:
 
 def test_builtins_come_through_the_entry_point_group() -> None:
     registry = load_registry()
-    builtin = {p.name: p.package for p in registry.provided if p.package == "amorctl"}
-    assert {"humanoid36", "biped20"} <= set(builtin)
+    builtin = {(p.name, p.kind) for p in registry.provided if p.package == "amorctl"}
+    assert {
+        ("humanoid36", "character"),
+        ("biped20", "character"),
+        ("tracking7", "objective-set"),
+        ("torch-cpu", "backend"),
+        ("deepmimic", "motion-format"),
+        ("bvh", "motion-format"),
+        ("npz", "motion-format"),
+    } <= builtin
+
+
+def _csv_format(name: str = "csvmotion", suffixes: tuple[str, ...] = (".csvm",)) -> MotionFormatSpec:
+    """A fake third-party format: ``x,y,z`` root positions per line at 30 Hz, no joints."""
+    from amorctl.motion.source import SourceMotion, deepmimic_skeleton
+
+    def load(path: Path, options: ImportOptions) -> SourceMotion:
+        rows = np.loadtxt(path, delimiter=",", ndmin=2)
+        quat = np.zeros((len(rows), 13, 4))
+        quat[..., 0] = 1.0
+        return SourceMotion(
+            name=options.name or path.stem, source=str(path), sha256="0" * 64, licence=options.licence,
+            skeleton=deepmimic_skeleton(), times=np.arange(len(rows)) / 30.0, root_pos=rows,
+            local_quat=quat, source_fps=30.0,
+        )  # fmt: skip
+
+    return MotionFormatSpec(name, suffixes, load=load, description="fake CSV root track")
+
+
+@pytest.fixture
+def with_plugins(monkeypatch: pytest.MonkeyPatch):
+    """Make ``get_registry()`` return the installed plugins plus the given fake ones."""
+    from importlib.metadata import entry_points
+
+    from amorctl import registry as reg
+
+    def install(*plugins: tuple[str, object]) -> None:
+        eps = [*entry_points(group=reg.ENTRY_POINT_GROUP), *(_ep(n, p, "fake-fmt-pkg") for n, p in plugins)]
+        monkeypatch.setattr(reg, "_CACHED", load_registry(eps=eps))
+
+    yield install
+    reg.reset_registry()
+
+
+def test_fake_motion_format_plugin_imports_files_like_a_builtin(tmp_path: Path, with_plugins) -> None:
+    from amorctl.motion.formats import import_file, importers, infer_format
+
+    plugin = _plugin(amorctl_register_motion_formats=lambda register: register(_csv_format()))
+    with_plugins(("csvfmt", plugin))
+    assert {"deepmimic", "bvh", "npz", "csvmotion"} <= set(importers())
+    path = tmp_path / "hop.csvm"
+    path.write_text("0,0,1\n0.1,0,1.2\n0.2,0,1\n")
+    assert infer_format(path) == "csvmotion"
+    motion = import_file(path, None, ImportOptions())
+    assert motion.name == "hop"
+    np.testing.assert_allclose(motion.root_pos[:, 2], [1.0, 1.2, 1.0])
+    np.testing.assert_allclose(motion.times, [0.0, 1 / 30, 2 / 30])
+
+
+def test_two_formats_claiming_one_suffix_need_format(tmp_path: Path, with_plugins) -> None:
+    from amorctl.motion.formats import import_file, infer_format
+
+    bvh2 = _csv_format("bvh2", (".bvh",))
+    with_plugins(("bvh2fmt", _plugin(amorctl_register_motion_formats=lambda register: register(bvh2))))
+    with pytest.raises(AmorError, match=r"claimed by formats bvh, bvh2; pass --format"):
+        infer_format(tmp_path / "a.bvh")
+    path = tmp_path / "a.bvh"
+    path.write_text("1,2,3\n")
+    assert import_file(path, "bvh2", ImportOptions()).root_pos.tolist() == [[1.0, 2.0, 3.0]]
+
+
+def test_a_format_returning_the_wrong_type_is_a_plugin_bug(tmp_path: Path, with_plugins) -> None:
+    from amorctl.motion.formats import import_file
+
+    bad = MotionFormatSpec("badfmt", (".bad",), load=lambda path, options: {"not": "a motion"})
+    with_plugins(("badfmt", _plugin(amorctl_register_motion_formats=lambda register: register(bad))))
+    path = tmp_path / "x.bad"
+    path.write_text("x")
+    with pytest.raises(TypeError, match="'badfmt' returned dict"):
+        import_file(path, None, ImportOptions())
+
+
+def test_blocking_a_builtin_format_removes_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AMORCTL_BLOCK_PLUGINS", "npz")
+    registry = load_registry()
+    assert "npz" not in registry.names("motion-format")
+    assert {"bvh", "deepmimic"} <= set(registry.names("motion-format"))

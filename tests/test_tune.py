@@ -34,7 +34,7 @@ from amorctl.outputs.mcap_log import (
     write_rollout_mcap,
 )
 from amorctl.outputs.plots import plot_rollout
-from amorctl.tune.session import TuneEnv, run_tune
+from amorctl.tune.session import PinnedMotion, run_tune
 
 torch.set_num_threads(1)
 
@@ -134,7 +134,7 @@ def test_a_schedule_switch_changes_the_policys_behaviour_after_the_switch(
         "[[keyframe]]\nt = 0\nweights = { right = 0.1, left = 0.9 }\n"
         "[[keyframe]]\nt = 0.2\nweights = { right = 0.9, left = 0.1 }\n"
     )
-    tenv = TuneEnv(toy_run)
+    tenv = PinnedMotion(toy_run)
     rollout = run_tune(tenv, load_schedule(sched, tenv.names), seconds=0.4, stop_on_fall=False)
     assert len(rollout.times) == 20 and not rollout.terminated.any()
     before, after = rollout.times < 0.2 - 1e-9, rollout.times >= 0.2 - 1e-9
@@ -150,7 +150,7 @@ def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(trackin
     # On a tracking run, the smooth weight reaches the policy exactly from the switch on, and the
     # action-rate measure the smooth objective penalizes is computed per step. (A policy trained
     # for seconds has not learnt to act smoother; the toy-smooth test below checks that effect.)
-    tenv = TuneEnv(tracking_run, "sway1")
+    tenv = PinnedMotion(tracking_run, "sway1")
     assert tenv.motion == "sway1" and tenv.names == TRACKING7
     from amorctl.core.schedule import parse_schedule
 
@@ -174,12 +174,12 @@ def test_raising_smooth_half_way_uses_the_smooth_weight_after_the_switch(trackin
     np.testing.assert_allclose(rate[1:], expected, rtol=1e-6)
     assert rate[0] == 0.0
     # the rollout starts at the clip's first frame in the reference state
-    lib = tenv.base.library
-    first = int(lib.starts[tenv.clip_index])
-    np.testing.assert_allclose(rollout.ref_joint_pos[0], lib.joint_pos[first + 1], atol=1e-6)
+    view = tenv.view
+    first = int(np.concatenate([[0], np.cumsum(view.clip_frame_counts)])[tenv.clip_index])
+    np.testing.assert_allclose(rollout.ref_joint_pos[0], view.reference_joint_pos([first + 1])[0], atol=1e-6)
 
 
-def _smooth_switch(tenv: TuneEnv, tmp_path: Path, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+def _smooth_switch(tenv: PinnedMotion, tmp_path: Path, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
     """Roll a toy-smooth run out for 1 s (50 steps, one episode) under a step schedule whose
     ``smooth`` weight is ``lo`` before 0.5 s and ``hi`` from then on: the mean action rate
     ``(a_t - a_{t-1})^2`` and the mean rewards [track, smooth], before and after the switch."""
@@ -205,7 +205,7 @@ def test_raising_smooth_half_way_lowers_the_action_rate_after_the_switch(
 ) -> None:
     # Issue 7: on a trained toy policy (track a jumping target vs the `smooth` action-rate
     # penalty), raising `smooth` half-way makes the policy hold still from the switch on.
-    tenv = TuneEnv(toy_smooth_run)
+    tenv = PinnedMotion(toy_smooth_run)
     assert tenv.names == ("track", "smooth")
     (rate_before, rate_after), rewards = _smooth_switch(tenv, tmp_path, 0.05, 0.95)
     assert rate_before > 0.05 and rate_after < rate_before / 5, (rate_before, rate_after)
@@ -260,7 +260,7 @@ def test_toy_smooth_env_follows_the_vector_env_contract_and_resumes_exactly() ->
 def test_mcap_log_round_trips_with_the_expected_channels_and_counts(
     tracking_run: Path, tmp_path: Path
 ) -> None:
-    tenv = TuneEnv(tracking_run, "sway0")
+    tenv = PinnedMotion(tracking_run, "sway0")
     w = np.array([1, 1, 1, 1, 1, 1, 3], dtype=np.float64) / 9
     rollout = run_tune(tenv, w, seconds=0.3, stop_on_fall=False)
     t = len(rollout.times)
@@ -300,7 +300,7 @@ def test_mcap_log_round_trips_with_the_expected_channels_and_counts(
     np.testing.assert_allclose([msgs[TOPIC_REWARDS][5][n] for n in TRACKING7], rollout.rewards[5], rtol=1e-6)
     np.testing.assert_allclose(msgs[TOPIC_ACTIONS][7]["values"], rollout.actions[7], rtol=1e-6)
     joints = msgs[TOPIC_JOINTS][2]
-    assert joints["name"] == list(tenv.base.library.joint_names)
+    assert joints["name"] == list(tenv.view.joint_names)
     np.testing.assert_allclose(joints["position"], rollout.joint_pos[2], atol=1e-9)
 
     plot = tmp_path / "plot.png"
@@ -309,7 +309,7 @@ def test_mcap_log_round_trips_with_the_expected_channels_and_counts(
 
 
 def test_toy_runs_log_actions_weights_and_rewards_only(toy_run: Path, tmp_path: Path) -> None:
-    rollout = run_tune(TuneEnv(toy_run), np.array([0.25, 0.75]), seconds=0.1, stop_on_fall=False)
+    rollout = run_tune(PinnedMotion(toy_run), np.array([0.25, 0.75]), seconds=0.1, stop_on_fall=False)
     write_rollout_mcap(rollout, tmp_path / "toy.mcap")
     msgs = read_rollout_mcap(tmp_path / "toy.mcap")
     assert {k: len(v) for k, v in msgs.items()} == {TOPIC_ACTIONS: 5, TOPIC_WEIGHTS: 5, TOPIC_REWARDS: 5}
@@ -399,7 +399,7 @@ def test_cli_bad_input_fails_cleanly_without_partial_files(
 def test_live_session_slider_reaches_the_policy_on_the_next_step(tracking_run: Path, tmp_path: Path) -> None:
     from amorctl.tune.live import LiveSession
 
-    session = LiveSession(TuneEnv(tracking_run, "sway0"), save_to=tmp_path / "rec.toml")
+    session = LiveSession(PinnedMotion(tracking_run, "sway0"), save_to=tmp_path / "rec.toml")
     rec = session.step()
     assert rec is not None
     np.testing.assert_allclose(session.weights_seen_by_policy, np.full(7, 1 / 7), atol=1e-6)
@@ -570,7 +570,7 @@ def test_live_app_steps_a_toy_run_in_the_background_and_stops(toy_run: Path) -> 
     # the page for a run without a character (the toy task's scene), served and stepped in-process
     from amorctl.tune.live import LiveApp, LiveSession
 
-    session = LiveSession(TuneEnv(toy_run), np.array([1.0, 0.0]))
+    session = LiveSession(PinnedMotion(toy_run), np.array([1.0, 0.0]))
     app = LiveApp(session, host="127.0.0.1", port=_free_port(), realtime=False).start()
     try:
         with urllib.request.urlopen(app.url, timeout=10) as resp:

@@ -7,6 +7,7 @@ sampled weight vector), m objectives. See ``docs/pareto.md`` for the definitions
 Conventions:
 
 - ``a`` dominates ``b`` when ``a >= b`` in every objective and ``a > b`` in at least one.
+- Dominance filtering is ``moocore.is_nondominated`` (O(n log n) for m <= 3, Kung et al. above).
 - Duplicates: identical points do not dominate each other, so every copy of a non-dominated point
   is kept by :func:`non_dominated_mask` (each sampled weight keeps its row; the non-dominated
   fraction counts copies). Pass ``keep_duplicates=False`` to keep only the first copy.
@@ -39,8 +40,6 @@ _EXACT_HV_MAX_POINTS_HIGH_M = 64
 
 #: Default margin of the reference-point rule, as a fraction of each objective's range.
 DEFAULT_REFERENCE_MARGIN = 0.1
-
-_CHUNK = 512  # rows compared at once in the O(n^2 m) dominance test (bounds memory at ~n * 512 * m)
 
 
 def _as_points(points: Any, name: str = "points") -> np.ndarray:
@@ -83,21 +82,11 @@ def non_dominated_mask(points: np.ndarray, *, keep_duplicates: bool = True) -> n
     Returns:
         [n] bool mask, True for the non-dominated points.
     """
+    import moocore  # imported here, as in hypervolume(): only the front metrics need it
+
     pts = _as_points(points)
-    n = pts.shape[0]
-    mask = np.empty(n, dtype=bool)
-    for start in range(0, n, _CHUNK):
-        block = pts[start : start + _CHUNK]  # [c, m]
-        # dominated[i] = any_j dominates(pts[j], block[i]);  [n, c] comparisons
-        geq = np.all(pts[:, None, :] >= block[None, :, :], axis=-1)
-        gt = np.any(pts[:, None, :] > block[None, :, :], axis=-1)
-        mask[start : start + _CHUNK] = ~np.any(geq & gt, axis=0)
-    if not keep_duplicates:
-        _, first = np.unique(pts, axis=0, return_index=True)
-        is_first = np.zeros(n, dtype=bool)
-        is_first[first] = True
-        mask &= is_first
-    return mask
+    # moocore's keep_weakly=True keeps every copy of a non-dominated point, False only the first
+    return np.asarray(moocore.is_nondominated(pts, maximise=True, keep_weakly=keep_duplicates), dtype=bool)
 
 
 def non_dominated(points: np.ndarray, *, keep_duplicates: bool = True) -> np.ndarray:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import split_frame
 from amorctl.core.schedule import Schedule
@@ -96,6 +97,7 @@ class Rollout:
         frame_index: [T, N] int, the library frame the step tracked (tracking envs only).
         qpos: [T, N, nq] float64, simulator state after the step (only with ``record_qpos``;
             for an env that reset in the step, its new episode's first state).
+        qpos_joint_pos: [T, N, J] float64, the joint angles of ``qpos`` (only with ``record_qpos``).
         batched_steps: control steps the batch took (T when per-step arrays were recorded).
     """
 
@@ -115,6 +117,7 @@ class Rollout:
     ref_ee_pos: np.ndarray | None = None
     frame_index: np.ndarray | None = None
     qpos: np.ndarray | None = None
+    qpos_joint_pos: np.ndarray | None = None
     batched_steps: int = 0
 
     @property
@@ -123,26 +126,12 @@ class Rollout:
         return int(self.valid.shape[0])
 
 
-def tracking_env(env: Any) -> Any | None:
-    """The :class:`~amorctl.envs.tracking_env.TrackingEnv` inside ``env`` (through wrappers), or None."""
-    from amorctl.envs.tracking_env import TrackingEnv
-
-    seen = 0
-    while env is not None and seen < 16:
-        if isinstance(env, TrackingEnv):
-            return env
-        env = env.__dict__.get("env")
-        seen += 1
-    return None
-
-
 def env_motion_names(env: Any) -> np.ndarray | None:
     """[N] object array: the clip name each env of a tracking env tracks now (None otherwise)."""
-    inner = tracking_env(env)
-    if inner is None:
+    view = tracking_view(env)
+    if view is None:
         return None
-    names = np.array([c.name for c in inner.library.clips], dtype=object)
-    return names[inner.clip_id]
+    return np.array(view.clip_names, dtype=object)[view.clip_index()]
 
 
 def schedule_weights(schedule: Schedule, t: np.ndarray, motions: np.ndarray | None) -> np.ndarray:
@@ -195,9 +184,10 @@ def rollout(
     completed ``episodes`` episodes.
 
     Args:
-        policy: ``policy(obs [N, D]) -> actions [N, A]`` (deterministic, e.g. from
-            :func:`amorctl.train.loop.load_policy`).
-        env: any :class:`VectorEnv` (wrapped in :class:`FixedWeights` here unless it already is).
+        policy: ``policy(obs [N, D]) -> actions [N, A]`` (deterministic, e.g. a
+            :class:`~amorctl.core.contracts.Policy`).
+        env: any :class:`VectorEnv` (wrapped in :class:`FixedWeights` here unless it already is);
+            tracking envs are read through their :class:`~amorctl.core.contracts.TrackingView`.
         weights: ``[m]`` for every env, ``[N, m]`` one per env, a callable ``t [N] -> [N, m]``
             (t: seconds since each env's episode began), or a :class:`Schedule` (evaluated per
             env at its episode time and, for tracking envs, for its current motion).
@@ -207,7 +197,8 @@ def rollout(
             plus one, or 100 000 when the env has none); episodes unfinished then are dropped.
         record_steps: keep the per-step arrays (memory T * N * ...); per-episode results are
             always kept.
-        record_qpos: also keep the simulator's qpos per step (tracking envs; for videos).
+        record_qpos: also keep the simulator's qpos and joint angles per step (tracking envs; for
+            videos and tuning logs).
         on_step: called with (steps done, steps cap) after every step (progress bars).
 
     Returns:
@@ -224,98 +215,150 @@ def rollout(
     m = len(names)
     wrapped = env if isinstance(env, FixedWeights) else FixedWeights(env, np.full(m, 1.0 / m))
     weights_at, constant = _weights_fn(weights, wrapped, n, m)
-    inner = tracking_env(env)
-    dt = float(inner.dt) if inner is not None else float(getattr(env, "dt", 0.02))
-    limit = getattr(inner if inner is not None else env, "max_episode_steps", None)
-    if limit is None:
-        limit = getattr(env, "max_steps", None)
-    cap = max_steps if max_steps is not None else (episodes * int(limit) + 1 if limit else 100_000)
+    view = tracking_view(env)
+    dt, cap = _timing(env, view, episodes, max_steps)
+    rec = _Recorder(n, m, episodes, view if record_steps else None, record_qpos)
 
     obs, _ = wrapped.reset(seed=seed)
     t_env = np.zeros(n, dtype=np.int64)  # steps since each env's episode began
-    ep_count = np.zeros(n, dtype=np.int64)
-    ep_return = np.zeros((n, m))
-    ep_len = np.zeros(n, dtype=np.int64)
-    ep_rows: list[tuple[np.ndarray, ...]] = []
-    steps: dict[str, list[np.ndarray]] = {}
-    valid_l: list[np.ndarray] = []
-    slot_l: list[np.ndarray] = []  # per step [N]: env * episodes + episode number, -1 if inactive
-
-    if inner is not None and record_steps:
-        jn, ne = inner.num_joints, inner.num_ee
-        proprio = inner.obs_layout["proprio"]
-
-    w = np.asarray(weights_at(t_env * dt), dtype=np.float64)
-    wrapped.set_weights(w)
+    wrapped.set_weights(np.asarray(weights_at(t_env * dt), dtype=np.float64))
     step = 0
-    while step < cap and (ep_count < episodes).any():
+    while step < cap and rec.running():
         if not constant and step > 0:
-            w = np.asarray(weights_at(t_env * dt), dtype=np.float64)
-            wrapped.set_weights(w)
+            wrapped.set_weights(np.asarray(weights_at(t_env * dt), dtype=np.float64))
         w_now = wrapped.weights  # [N, m] float32
         obs = np.array(obs, dtype=np.float32, copy=True)
         obs[:, -m:] = w_now  # the weights in force now (also when they just changed)
         actions = np.asarray(policy(obs), dtype=np.float32)
-        frame = None if inner is None else inner.ref_idx + 1
+        frame = None if view is None else view.reference_index() + 1
         obs, rewards, terminated, truncated, info = wrapped.step(actions)
-        active = ep_count < episodes
-        done = (terminated | truncated) & active
-        ep_return[active] += rewards[active]
-        ep_len[active] += 1
-        t_env += 1
-
+        terminated = np.asarray(terminated, dtype=bool)
+        truncated = np.asarray(truncated, dtype=bool)
         if record_steps:
-            steps.setdefault("rewards", []).append(rewards.astype(np.float32))
-            steps.setdefault("done", []).append(terminated | truncated)
-            steps.setdefault("terminated", []).append(np.asarray(terminated, dtype=bool))
-            steps.setdefault("weights", []).append(w_now)
-            steps.setdefault("actions", []).append(actions)
-            valid_l.append(active.copy())
-            slot_l.append(np.where(active, np.arange(n) * episodes + ep_count, -1))
-            if inner is not None:
-                sim = split_frame(info["final_obs"][:, proprio], jn, ne)
-                ref = split_frame(inner.ref_frames[frame], jn, ne)
-                steps.setdefault("joint_pos", []).append(np.asarray(sim.joint_pos, dtype=np.float32))
-                steps.setdefault("ref_joint_pos", []).append(ref.joint_pos.astype(np.float32))
-                steps.setdefault("ee_pos", []).append(np.asarray(sim.ee_pos, dtype=np.float32))
-                steps.setdefault("ref_ee_pos", []).append(ref.ee_pos.astype(np.float32))
-                steps.setdefault("frame_index", []).append(frame)
-                if record_qpos:
-                    steps.setdefault("qpos", []).append(inner.sim.qpos.copy())
-
-        ended = np.flatnonzero(done)
-        if len(ended):
-            ep_rows.append(
-                (
-                    ended,
-                    ep_count[ended].copy(),
-                    ep_return[ended].copy(),
-                    ep_len[ended].copy(),
-                    np.asarray(truncated, dtype=bool)[ended] & ~np.asarray(terminated, dtype=bool)[ended],
-                    w_now[ended].copy(),
-                )
-            )
-            ep_count[ended] += 1
-            ep_return[ended] = 0.0
-            ep_len[ended] = 0
-        reset = np.flatnonzero(terminated | truncated)
-        t_env[reset] = 0
+            rec.record_step(rewards, terminated, truncated, w_now, actions, info["final_obs"], frame)
+        rec.count(rewards, terminated, truncated, w_now)
+        t_env += 1
+        t_env[terminated | truncated] = 0
         step += 1
         if on_step is not None:
             on_step(step, cap)
+    return rec.result(names, dt, step)
 
-    eps = _collect_episodes(ep_rows, m)
-    valid = np.stack(valid_l) if valid_l else np.zeros((0, n), dtype=bool)
-    episode_id = np.full(valid.shape, -1, dtype=np.int64)
-    if slot_l:  # map (env, episode number) slots to rows of `eps`; unfinished episodes stay -1
-        slots = np.stack(slot_l)
-        row_of_slot = np.full(n * episodes + 1, -1, dtype=np.int64)
-        row_of_slot[eps.env * episodes + eps.index] = np.arange(eps.count)
-        episode_id = row_of_slot[np.where(slots >= 0, slots, n * episodes)]
-    out = Rollout(names, dt, eps, valid, episode_id, batched_steps=step)
-    for key, seq in steps.items():
-        setattr(out, key, np.stack(seq))
-    return out
+
+def _timing(env: Any, view: Any, episodes: int, max_steps: int | None) -> tuple[float, int]:
+    """(seconds per control step, step cap) of a rollout on ``env``."""
+    dt = float(view.dt) if view is not None else float(getattr(env, "dt", 0.02))
+    limit = view.max_episode_steps if view is not None else getattr(env, "max_episode_steps", None)
+    if limit is None:
+        limit = getattr(env, "max_steps", None)
+    cap = max_steps if max_steps is not None else (episodes * int(limit) + 1 if limit else 100_000)
+    return dt, cap
+
+
+class _Recorder:
+    """Accumulates a rollout: the episodes as they end and, optionally, the per-step arrays.
+
+    Args:
+        n, m: envs and objectives.
+        episodes: episodes each env runs.
+        view: the tracking env's view when its per-step tracking arrays are recorded, else None.
+        record_qpos: also record qpos and joint angles (needs ``view``).
+    """
+
+    def __init__(self, n: int, m: int, episodes: int, view: Any, record_qpos: bool) -> None:
+        self.n, self.m, self.episodes = n, m, episodes
+        self.view, self.record_qpos = view, record_qpos
+        self.ep_count = np.zeros(n, dtype=np.int64)
+        self.ep_return = np.zeros((n, m))
+        self.ep_len = np.zeros(n, dtype=np.int64)
+        self.ep_rows: list[tuple[np.ndarray, ...]] = []
+        self.steps: dict[str, list[np.ndarray]] = {}
+        self.valid: list[np.ndarray] = []
+        self.slots: list[np.ndarray] = []  # per step [N]: env * episodes + episode number, -1 if inactive
+        if view is not None:
+            self.joints, self.effectors = len(view.joint_names), len(view.character.end_effectors)
+            self.proprio = slice(*view.observation_layout["proprio"])
+
+    def running(self) -> bool:
+        """Whether some env has episodes left to run."""
+        return bool((self.ep_count < self.episodes).any())
+
+    def _add(self, key: str, value: np.ndarray) -> None:
+        self.steps.setdefault(key, []).append(value)
+
+    def record_step(
+        self,
+        rewards: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        w_now: np.ndarray,
+        actions: np.ndarray,
+        final_obs: np.ndarray,
+        frame: np.ndarray | None,
+    ) -> None:
+        """Keep one step's per-step arrays (before :meth:`count` advances the episode counters)."""
+        active = self.ep_count < self.episodes
+        self._add("rewards", rewards.astype(np.float32))
+        self._add("done", terminated | truncated)
+        self._add("terminated", terminated)
+        self._add("weights", w_now)
+        self._add("actions", actions)
+        self.valid.append(active.copy())
+        self.slots.append(np.where(active, np.arange(self.n) * self.episodes + self.ep_count, -1))
+        view = self.view
+        if view is None or frame is None:
+            return
+        jn, ne = self.joints, self.effectors
+        sim = split_frame(final_obs[:, self.proprio], jn, ne)
+        ref = split_frame(view.reference_frames(frame), jn, ne)
+        self._add("joint_pos", np.asarray(sim.joint_pos, dtype=np.float32))
+        self._add("ref_joint_pos", ref.joint_pos.astype(np.float32))
+        self._add("ee_pos", np.asarray(sim.ee_pos, dtype=np.float32))
+        self._add("ref_ee_pos", ref.ee_pos.astype(np.float32))
+        self._add("frame_index", frame)
+        if self.record_qpos:
+            self._add("qpos", view.qpos())
+            self._add("qpos_joint_pos", view.joint_pos())
+
+    def count(
+        self, rewards: np.ndarray, terminated: np.ndarray, truncated: np.ndarray, w_now: np.ndarray
+    ) -> None:
+        """Add one step's rewards to the running episodes and close those that ended."""
+        active = self.ep_count < self.episodes
+        done = (terminated | truncated) & active
+        self.ep_return[active] += rewards[active]
+        self.ep_len[active] += 1
+        ended = np.flatnonzero(done)
+        if len(ended):
+            self.ep_rows.append(
+                (
+                    ended,
+                    self.ep_count[ended].copy(),
+                    self.ep_return[ended].copy(),
+                    self.ep_len[ended].copy(),
+                    truncated[ended] & ~terminated[ended],
+                    w_now[ended].copy(),
+                )
+            )
+            self.ep_count[ended] += 1
+            self.ep_return[ended] = 0.0
+            self.ep_len[ended] = 0
+
+    def result(self, names: tuple[str, ...], dt: float, batched_steps: int) -> Rollout:
+        """The :class:`Rollout` of everything recorded."""
+        n, episodes = self.n, self.episodes
+        eps = _collect_episodes(self.ep_rows, self.m)
+        valid = np.stack(self.valid) if self.valid else np.zeros((0, n), dtype=bool)
+        episode_id = np.full(valid.shape, -1, dtype=np.int64)
+        if self.slots:  # map (env, episode number) slots to rows of `eps`; unfinished episodes stay -1
+            slots = np.stack(self.slots)
+            row_of_slot = np.full(n * episodes + 1, -1, dtype=np.int64)
+            row_of_slot[eps.env * episodes + eps.index] = np.arange(eps.count)
+            episode_id = row_of_slot[np.where(slots >= 0, slots, n * episodes)]
+        out = Rollout(names, dt, eps, valid, episode_id, batched_steps=batched_steps)
+        for key, seq in self.steps.items():
+            setattr(out, key, np.stack(seq))
+        return out
 
 
 def _collect_episodes(rows: list[tuple[np.ndarray, ...]], m: int) -> Episodes:

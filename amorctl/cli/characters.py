@@ -9,6 +9,7 @@ from rich.table import Table
 
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, print_json
+from amorctl.core.errors import AmorError
 from amorctl.registry import get_registry
 from amorctl.sim.character_info import describe_character
 
@@ -78,3 +79,46 @@ def show_character(
             f"{j['torque_limit']:g}",
         )
     console.print(table)
+
+
+#: scale profile -> the built-in character whose ``smooth`` scales the profile was tuned on.
+REFERENCE_CHARACTERS = {"robot": "biped20", "humanoid": "humanoid36"}
+_STYLE = {"pass": "green", "warn": "yellow", "fail": "red"}
+
+
+@app.command("check")
+def check_character_cmd(
+    name: Annotated[str, typer.Argument(help="Character name (see `amorctl characters list`).")],
+    hold: Annotated[bool, typer.Option("--hold/--no-hold", help="Run the 5 s PD hold test.")] = True,
+    objective_set: Annotated[
+        str, typer.Option("--objectives", help="Objective set whose smooth scales to suggest for.")
+    ] = "tracking7",
+    json_out: JsonFlag = False,
+) -> None:
+    """Check a character's spec against its model: one pass/warn/fail line per check; exit 1 on a fail."""
+    from amorctl.sim.check import check_character, checks_json, worst
+
+    registry = get_registry()
+    spec = registry.character(name)
+    ref_name = REFERENCE_CHARACTERS.get(spec.scale_profile)
+    reference = registry.character(ref_name) if ref_name in registry.names("character") else None
+    scale = None
+    if reference is not None and objective_set in registry.names("objective-set"):
+        try:
+            scales = getattr(registry.objective_set(objective_set).make(spec), "scales", {})
+        except AmorError:
+            scales = {}
+        scale = scales.get("smooth_torque")
+    checks = check_character(spec, hold=hold, reference=reference, smooth_torque_scale=scale)
+    result = worst(checks)
+    if json_out:
+        print_json({"character": name, "result": result, "checks": checks_json(checks)})
+    else:
+        for c in checks:
+            console.print(
+                f"[{_STYLE[c.status]}]{c.status:<4}[/{_STYLE[c.status]}] {c.name}: {c.detail}",
+                highlight=False,
+            )
+        console.print(f"{name}: {result}", highlight=False)
+    if result == "fail":
+        raise typer.Exit(1)

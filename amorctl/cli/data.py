@@ -20,8 +20,10 @@ def show(
     dataset: Annotated[Path, typer.Argument(help="Dataset file written by `amorctl preprocess`.")],
     json_out: JsonFlag = False,
 ) -> None:
-    """List the clips with frame counts, durations, sources and retargeting errors."""
+    """List the clips with frame counts, durations, sources and retargeting errors, and the
+    SHA-256 of every array and attachment (checked while loading)."""
     lib = load_dataset(dataset)
+    integrity = lib.metadata.get("integrity", {})
     clips = [
         {
             "name": c.name,
@@ -47,6 +49,7 @@ def show(
                 "joint_names": list(lib.joint_names),
                 "end_effectors": list(lib.end_effectors),
                 "vae": lib.metadata.get("vae"),
+                "integrity": integrity,
                 "clips": clips,
             }
         )
@@ -67,3 +70,16 @@ def show(
         )
     console.print(table)
     console.print("licences: " + "; ".join(sorted({c["licence"] for c in clips})), highlight=False)
+    if not integrity.get("verified"):
+        console.print(
+            f"integrity: not verified ({integrity.get('reason', 'no content hashes')}); "
+            "re-run `amorctl preprocess` to add them",
+            highlight=False,
+        )
+        return
+    console.print("integrity: every SHA-256 below was verified while loading", highlight=False)
+    for name, digest in integrity["sha256"].items():
+        console.print(f"  {name:<{_WIDTH}} {digest}", highlight=False, soft_wrap=True)
+
+
+_WIDTH = 12 + len("attachment:")  # the longest array or attachment name column

@@ -11,22 +11,18 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from amorctl.analysis.evaluation import (
-    DEFAULT_SWEEP_LEVELS,
-    EvalResult,
-    check_objective,
-    evaluate_setting,
-    make_eval_env,
-    open_run,
-    weight_sweep,
-)
-from amorctl.analysis.rollout import WeightsSource, rollout, tracking_env
+from amorctl.analysis.eval_env import check_objective, close_env, make_eval_env
+from amorctl.analysis.rollout import WeightsSource, rollout
+from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, weight_sweep
+from amorctl.analysis.tracking_metrics import EvalResult, evaluate_setting
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, print_json
 from amorctl.cli.pareto import MotionOpt, rollout_progress
+from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule, load_schedule
 from amorctl.core.weights import parse_weights
+from amorctl.train.rundir import RunDir
 
 ROWS = (
     ("joint MAE (deg)", "joint_mae_deg", ".2f"),
@@ -93,22 +89,24 @@ def _video(
     seed: int,
 ) -> dict[str, Any]:  # fmt: skip
     """Roll out one env for one episode (at most ``seconds``) and render it with ghost and weights."""
-    from amorctl.outputs.video import reference_qpos, render_video
+    from amorctl.outputs.video import render_video
 
     if config.env.kind != "tracking":
         raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
     env, _ = make_eval_env(config, 1, motions=motions[:1] if motions else None, seed=seed)
     try:
-        inner = tracking_env(env)
-        steps = max(1, round(seconds / inner.dt))
+        view = tracking_view(env)
+        if view is None:
+            raise AmorError("--video: this run's env has no motion to render")
+        steps = max(1, round(seconds / view.dt))
         ro = rollout(policy, env, source, episodes=1, seed=seed, max_steps=steps, record_qpos=True)
-        ref = reference_qpos(inner, ro.frame_index[:, 0])
+        assert ro.qpos is not None and ro.frame_index is not None and ro.weights is not None
         info = render_video(
-            path, inner.character.name, ro.qpos[:, 0], ref_qpos=ref, weights=ro.weights[:, 0],
-            objective_names=ro.objective_names, fps=1.0 / inner.dt,
+            path, view.character.name, ro.qpos[:, 0], ref_qpos=view.reference_qpos(ro.frame_index[:, 0]),
+            weights=ro.weights[:, 0], objective_names=ro.objective_names, fps=1.0 / view.dt,
         )  # fmt: skip
     finally:
-        env.close()  # type: ignore[attr-defined]
+        close_env(env)
     return {
         "path": str(info.path), "frames": info.frames, "width": info.width, "height": info.height,
         "fps": info.fps, "gl_backend": info.gl_backend,
@@ -152,7 +150,8 @@ def evaluate(
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
     if video is not None and video.suffix.lower() != ".mp4":
         raise AmorError(f"--video {video}: the file must end in .mp4")
-    policy, config = open_run(run)
+    opened = RunDir.open(run)
+    policy, config = opened.policy(), opened.config
     if video is not None and config.env.kind != "tracking":
         raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
     names = tuple(policy.objectives)
@@ -166,30 +165,15 @@ def evaluate(
     results: list[EvalResult] = []
     for label, source in settings:
         with rollout_progress(show, f"evaluate {label}") as on_step:
-            results.append(
-                evaluate_setting(
-                    policy,
-                    config,
-                    source,
-                    label=label,
-                    motions=motion,
-                    episodes=episodes,
-                    seed=seed,
-                    on_step=on_step,
-                )
-            )
-    sweep_doc: dict[str, Any] | None = None
-    if sweep is not None:
-        from amorctl.outputs.plots import sweep_figure
-
-        with rollout_progress(show, f"sweep {sweep}") as on_step:
-            ws = weight_sweep(
-                policy, config, sweep, levels=sweep_levels, motions=motion, episodes=episodes, seed=seed,
+            result = evaluate_setting(
+                policy, config, source, label=label, motions=motion, episodes=episodes, seed=seed,
                 on_step=on_step,
             )  # fmt: skip
+        results.append(result)
+    sweep_doc = None
+    if sweep is not None:
         figure = (out if out is not None else run / "evaluate") / f"sweep-{sweep}.png"
-        sweep_figure(ws, figure)
-        sweep_doc = {**ws.to_dict(), "figure": str(figure)}
+        sweep_doc = _sweep(policy, config, sweep, sweep_levels, motion, episodes, seed, figure, show)
     video_doc = None
     if video is not None:
         video_doc = _video(video, policy, config, settings[-1][1], motion, video_seconds, seed)
@@ -210,14 +194,36 @@ def evaluate(
     if json_out:
         print_json(doc)
         return
+    _print_report(doc, results, names)
+
+
+def _sweep(
+    policy: Any, config: Any, objective: str, levels: list[float], motions: list[str] | None, episodes: int,
+    seed: int, figure: Path, show: bool,
+) -> dict[str, Any]:  # fmt: skip
+    """Run the weight sweep of ``objective``, draw its figure; the ``sweep`` part of the JSON."""
+    from amorctl.outputs.plots import sweep_figure
+
+    with rollout_progress(show, f"sweep {objective}") as on_step:
+        ws = weight_sweep(
+            policy, config, objective, levels=levels, motions=motions, episodes=episodes, seed=seed,
+            on_step=on_step,
+        )  # fmt: skip
+    sweep_figure(ws, figure)
+    return {**ws.to_dict(), "figure": str(figure)}
+
+
+def _print_report(doc: dict[str, Any], results: list[EvalResult], names: tuple[str, ...]) -> None:
+    """The metrics table, then the sweep's and the video's one-line summaries."""
     console.print(_table(results, names))
+    sweep_doc, video_doc = doc["sweep"], doc["video"]
     if sweep_doc is not None:
         means = ", ".join(
             f"{lv:.2f}: {_fmt(mu, '.2f')}"
             for lv, mu in zip(sweep_doc["levels"], sweep_doc["mean"], strict=True)
         )
         console.print(
-            f"sweep of {sweep}: mean return per weight level {means}\n"
+            f"sweep of {sweep_doc['objective']}: mean return per weight level {means}\n"
             f"Spearman rank correlation (weight vs return): ρ = {_fmt(sweep_doc['spearman_rho'], '.3f')} "
             f"(p = {_fmt(sweep_doc['spearman_p'], '.2g')}) · figure: {sweep_doc['figure']}",
             highlight=False,

@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from amorctl import __version__
-from amorctl.cli import characters, data, evaluate, pareto, plugins, preprocess, train, tune
+from amorctl.cli import characters, data, deploy, evaluate, hlp, pareto, plugins, preprocess, train, tune
 from amorctl.core.errors import AmorError
 
 app = typer.Typer(
@@ -28,6 +28,8 @@ app.add_typer(data.app, name="data")
 app.command("pareto")(pareto.pareto)
 app.command("evaluate")(evaluate.evaluate)
 app.command("tune")(tune.tune)
+app.add_typer(deploy.app, name="deploy")
+app.add_typer(hlp.app, name="hlp")
 
 
 def _version(value: bool) -> None:

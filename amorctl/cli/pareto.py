@@ -12,18 +12,18 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from amorctl.analysis.evaluation import (
-    open_run,
+from amorctl.analysis.eval_env import sweep_weights
+from amorctl.analysis.sweeps import (
     pareto_csv,
     pareto_sweep,
     pareto_to_dict,
     parse_reference_point,
-    sample_weights,
 )
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
+from amorctl.train.rundir import RunDir
 
 MotionOpt = Annotated[
     list[str] | None,
@@ -82,9 +82,10 @@ def pareto(
         raise AmorError(f"--hv-method must be auto, exact or monte_carlo, got {hv_method!r}")
     if episodes < 1:
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
-    policy, config = open_run(run)
+    opened = RunDir.open(run)
+    policy, config = opened.policy(), opened.config
     names = tuple(policy.objectives)
-    weights, sampling = sample_weights(len(names), samples, grid=grid, seed=seed)
+    weights, sampling = sweep_weights(len(names), samples, grid=grid, seed=seed)
     reference = parse_reference_point(ref_point, names) if ref_point is not None else None
     out_dir = out if out is not None else run / "pareto"
     show = not json_out and console.is_terminal
@@ -110,6 +111,11 @@ def pareto(
     if json_out:
         print_json(doc)
         return
+    _print_summary(doc, files)
+
+
+def _print_summary(doc: dict[str, Any], files: dict[str, str]) -> None:
+    """The front metrics per motion as a table, then timing and where the files are."""
     table = Table(title="Pareto front (objectives maximized; returns unscaled)")
     for col in ("motion", "points", "non-dominated", "hypervolume", "HV method", "EUM", "sparsity"):
         table.add_column(col, justify="left" if col in ("motion", "HV method") else "right")

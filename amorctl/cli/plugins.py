@@ -12,7 +12,7 @@ from amorctl.registry import get_registry
 
 
 def plugins(json_out: JsonFlag = False) -> None:
-    """List installed plugins (characters, objective sets, backends) and any that failed to load."""
+    """List installed plugins (characters, objective sets, backends, motion formats) and any that failed."""
     registry = get_registry()
     rows = sorted(registry.provided, key=lambda p: (p.kind, p.name))
     if json_out:

@@ -28,9 +28,13 @@ def preprocess(
         str | None, typer.Option("--builtin", help="Add a built-in motion set: 'deepmimic' (20 clips).")
     ] = None,
     fmt: Annotated[
-        str | None, typer.Option("--format", help="deepmimic | bvh | npz (default: from the file suffix).")
+        str | None, typer.Option("--format", help="deepmimic | bvh | npz | a plugin's (default: by suffix).")
     ] = None,
     joint_map: Annotated[Path | None, typer.Option("--map", help="TOML joint map for BVH files.")] = None,
+    licence: Annotated[
+        str | None,
+        typer.Option("--licence", help="Licence of the FILES, recorded per clip (default: unknown)."),
+    ] = None,
     vae: Annotated[bool, typer.Option("--vae/--no-vae", help="Train the motion VAE and store z_t.")] = True,
     vae_epochs: Annotated[int, typer.Option(help="VAE training epochs.")] = _DEFAULT.epochs,
     vae_window: Annotated[
@@ -83,6 +87,7 @@ def preprocess(
             builtin=builtin,
             fmt=fmt,
             joint_map=joint_map,
+            licence=licence,
             vae=cfg,
             progress=Hooks(clip=on_clip, vae_step=on_step),
         )
@@ -109,10 +114,18 @@ def preprocess(
             str(c["frames"]),
             f"{c['duration_s']:.2f}",
             f"{c['source_fps']:.1f}",
-            f"{c['retarget_error_m']:.4f}",
+            "-" if "npz_layout" in c else f"{c['retarget_error_m']:.4f}",  # robot clips: not retargeted
             f"{c.get('floor_lift_max', 0.0):.3f}",
         )
     console.print(table)
+    for c in report.clips:
+        if "npz_layout" in c:  # robot clips get a contact report instead of a retarget error
+            console.print(
+                f"{c['name']} ({c['npz_layout']}): penetration before lift "
+                f"{c['penetration_before_lift_m']:.3f} m, lower foot hovers up to "
+                f"{c['lower_foot_hover_max']:.3f} m, feet slide {c['foot_sliding']:.3f} m/s in contact",
+                highlight=False,
+            )
     if report.vae:
         v = report.vae
         console.print(

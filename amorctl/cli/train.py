@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -17,8 +19,13 @@ from amorctl.cli.output import console, print_json
 from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import parse_weight_pairs
+from amorctl.train import distributed
 from amorctl.train.loop import train_run
 from amorctl.train.rundir import RunDir
+
+#: Exit status after a signal stopped training (and a checkpoint was saved): 128 + signal number.
+SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 
 
 def _fmt_time(seconds: float) -> str:
@@ -110,13 +117,39 @@ class _Display:
             self.live = None
 
 
+#: The command-line flag of each config field ``train`` takes as an option (named in errors).
+FLAGS: dict[tuple[str, str], str] = {
+    ("run", "backend"): "--backend",
+    ("run", "seed"): "--seed",
+    ("run", "iterations"): "--iterations",
+    ("env", "character"): "--character",
+    ("env", "num_envs"): "--num-envs",
+    ("env", "fixed_weights"): "--fixed-weights",
+    ("env", "dataset"): "--data",
+    ("env", "kind"): "--env",
+    ("env", "gym_id"): "--env",
+}
+
+
+def _apply_flags(base: TrainConfig, overrides: dict[str, dict[str, Any]]) -> TrainConfig:
+    """Merge command-line values one flag at a time, so an error names the flag that set it."""
+    by_flag: dict[str, dict[str, dict[str, Any]]] = {}
+    for section, values in overrides.items():
+        for key, value in values.items():
+            flag = FLAGS.get((section, key), "command line")
+            by_flag.setdefault(flag, {}).setdefault(section, {})[key] = value
+    for flag, data in by_flag.items():
+        base = merge(base, data, flag)
+    return base
+
+
 def _resolve_config(
     preset: str | None, config_file: Path | None, overrides: dict[str, dict[str, Any]]
 ) -> TrainConfig:
     base = load_preset(preset or "quick")
     if config_file is not None:
         base = load_config(config_file, base)
-    return merge(base, {k: v for k, v in overrides.items() if v}, "command line")
+    return _apply_flags(base, overrides)
 
 
 def _resume_config(
@@ -137,9 +170,9 @@ def _resume_config(
                     f"not {value!r}; it cannot change when resuming"
                 )
     iterations = overrides.get("run", {}).get("iterations")
-    return (
-        config if iterations is None else merge(config, {"run": {"iterations": iterations}}, "command line")
-    )
+    if iterations is None:
+        return config
+    return merge(config, {"run": {"iterations": iterations}}, "--iterations")
 
 
 def train(
@@ -185,8 +218,19 @@ def train(
     json_out: Annotated[
         bool, typer.Option("--json", help="Print a JSON summary at the end, no live view.")
     ] = False,
+    nproc: Annotated[
+        int | None,
+        typer.Option(
+            "--nproc",
+            min=1,
+            help="Train data-parallel over N processes on this machine (launches torchrun; "
+            "docs/distributed.md).",
+        ),
+    ] = None,
 ) -> None:
     """Train one policy for every trade-off between the objectives (MOPPO, the AMOR paper's Section 4)."""
+    if fixed_weights is not None and fixed_weights.strip().lower() != "uniform":
+        parse_weight_pairs(fixed_weights, source="--fixed-weights")  # '' and 'up=1,,lo=1' refused here
     env_section: dict[str, Any] = {
         "character": character,
         "num_envs": num_envs,
@@ -214,8 +258,44 @@ def train(
             what = config.env.character if config.env.kind == "tracking" else config.env.kind
             out = Path("runs") / f"{what}-{time.strftime('%Y%m%d-%H%M%S')}"
 
+    if nproc is not None and nproc > 1 and distributed.launched_world_size() == 1:
+        distributed.local_config(config, distributed.World(0, nproc))  # num_envs divisible: checked here
+        flags = {
+            "--character": character, "--config": config_file, "--preset": preset, "--backend": backend,
+            "--data": data, "--out": out, "--seed": seed, "--iterations": iterations,
+            "--fixed-weights": fixed_weights, "--env": env, "--num-envs": num_envs,
+        }  # fmt: skip
+        args = [a for flag, v in flags.items() if v is not None for a in (flag, str(v))]
+        args += ["--resume"] * resume + ["--json"] * json_out
+        raise typer.Exit(_launch(nproc, args))
+    with distributed.session() as world:
+        if world.distributed and not resume:
+            out = world.broadcast(out)  # the default name has a time stamp: rank 0's
+        _train_here(config, out, resume, json_out, world)
+
+
+def _launch(nproc: int, args: list[str]) -> int:
+    """Run ``amorctl train <args>`` on ``nproc`` local ranks under torchrun; its exit status."""
+    command = [
+        sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc-per-node={nproc}",
+        "-m", "amorctl", "train", *args,
+    ]  # fmt: skip
+    console.print(f"launching {nproc} processes: {' '.join(command[1:])}", highlight=False, soft_wrap=True)
+    try:
+        return subprocess.run(command, check=False).returncode
+    except KeyboardInterrupt:  # torchrun forwards the signal to the ranks; they checkpoint and stop
+        return 130
+
+
+def _train_here(
+    config: TrainConfig, out: Path, resume: bool, json_out: bool, world: distributed.World
+) -> None:
+    """Train in this process (one rank under torchrun); rank 0 alone prints."""
+    if not world.is_main:
+        json_out = True  # no live view
+
     display = _Display(out, config, live=console.is_terminal and not json_out)
-    if config.env.kind == "tracking" and not json_out:
+    if config.env.kind == "tracking" and not json_out and world.is_main:
         data_note = (
             config.env.dataset or "the built-in clips (preprocessed into the cache on first use: minutes)"
         )
@@ -229,6 +309,7 @@ def train(
             resume=resume,
             on_start=None if json_out else display.on_start,
             on_iteration=None if json_out else display.on_iteration,
+            on_note=lambda note: console.print(f"note: {note}", highlight=False, soft_wrap=True),
         )
     finally:
         display.stop()
@@ -240,12 +321,18 @@ def train(
         "checkpoint": str(result.checkpoint) if result.checkpoint else None,
         "metrics": {k: v for k, v in result.last_metrics.items() if math.isfinite(v)},
     }
+    if not world.is_main:  # other ranks stay quiet; their exit status still tells
+        if result.interrupted:
+            raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))
+        return
     if json_out:
         print_json(summary)
+        if result.interrupted:
+            raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))
         return
     state = "interrupted" if result.interrupted else "done"
     console.print(
         f"{state} at iteration {result.end_iteration}; checkpoint {summary['checkpoint']}", highlight=False
     )
     if result.interrupted:
-        raise typer.Exit(130)
+        raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))

@@ -91,30 +91,10 @@ def tune(
     (--schedule), or live in the browser (--live). Prints per-objective returns."""
     from amorctl.core.schedule import load_schedule
     from amorctl.core.weights import parse_weights
-    from amorctl.outputs.mcap_log import write_rollout_mcap
-    from amorctl.outputs.plots import plot_rollout
-    from amorctl.tune.session import TuneEnv, run_tune
+    from amorctl.tune.session import PinnedMotion, run_tune
 
-    if live:
-        if schedule is not None or out is not None or plot is not None or video is not None:
-            raise AmorError(
-                "--live takes no --schedule, --out, --plot or --video (save keyframes on the page)"
-            )
-        if not 0 < port < 65536:
-            raise AmorError(f"--port must be in 1..65535, got {port}")
-    elif (weights is None) == (schedule is None):
-        raise AmorError("give exactly one of --weights or --schedule (or --live)")
-    _check_outputs([out, plot, video])
-    render_video = None
-    if video is not None:
-        if video.suffix.lower() != ".mp4":
-            raise AmorError(f"--video {video}: the file must end in .mp4")
-        try:
-            from amorctl.outputs.video import render_video
-        except ImportError:
-            raise AmorError("--video needs amorctl.outputs.video, which this installation lacks") from None
-
-    tenv = TuneEnv(run, motion, seed=seed)
+    _check_args(live, schedule, weights, out, plot, video, port)
+    tenv = PinnedMotion(run, motion, seed=seed)
     if video is not None and not tenv.tracking:
         tenv.close()
         raise AmorError(f"--video needs a character; run {run} has env kind {tenv.config.env.kind!r}")
@@ -134,19 +114,58 @@ def tune(
         rollout = run_tune(tenv, sched if sched is not None else w0, seconds, stop_on_fall=stop_on_fall)
     finally:
         tenv.close()
+    character = tenv.view.character.name if tenv.view is not None else ""
+    _write_outputs(rollout, {"run": str(run), "seed": str(seed)}, out, plot, video, character)
+    kf_times = sched.track_for(tenv.motion).times if sched is not None else np.zeros(0)
+    result = _result(run, rollout, kf_times, {"out": out, "plot": plot, "video": video})
+    if json_:
+        print_json(result)
+        return
+    _print_table(result)
+
+
+def _check_args(
+    live: bool, schedule: Path | None, weights: str | None, out: Path | None, plot: Path | None,
+    video: Path | None, port: int,
+) -> None:  # fmt: skip
+    """AmorError for a combination of options that cannot work, before any work is done."""
+    if live:
+        if schedule is not None or out is not None or plot is not None or video is not None:
+            raise AmorError(
+                "--live takes no --schedule, --out, --plot or --video (save keyframes on the page)"
+            )
+        if not 0 < port < 65536:
+            raise AmorError(f"--port must be in 1..65535, got {port}")
+    elif (weights is None) == (schedule is None):
+        raise AmorError("give exactly one of --weights or --schedule (or --live)")
+    _check_outputs([out, plot, video])
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise AmorError(f"--video {video}: the file must end in .mp4")
+
+
+def _write_outputs(
+    rollout: Any, meta: dict[str, str], out: Path | None, plot: Path | None, video: Path | None,
+    character: str,
+) -> None:  # fmt: skip
+    """Write the MCAP log, the plot and the video (with the reference ghost) that were asked for:
+    all of them or none (a failure removes the files written before it)."""
+    from amorctl.outputs.mcap_log import write_rollout_mcap
+    from amorctl.outputs.plots import plot_rollout
 
     written: list[Path] = []
-    try:  # all outputs or none: a later failure removes the files written before it
+    try:
         if out is not None:
-            write_rollout_mcap(rollout, out, {"run": str(run), "seed": str(seed)})
+            write_rollout_mcap(rollout, out, meta)
             written.append(out)
         if plot is not None:
-            plot_rollout(rollout, plot, title=f"{run.name} — {rollout.motion or 'rollout'}")
+            plot_rollout(rollout, plot, title=f"{Path(meta['run']).name} — {rollout.motion or 'rollout'}")
             written.append(plot)
-        if video is not None and render_video is not None:
+        if video is not None:
+            from amorctl.outputs.video import render_video
+
             render_video(
                 video,
-                tenv.config.env.character,
+                character,
                 rollout.qpos,
                 ref_qpos=rollout.ref_qpos,
                 weights=rollout.weights,
@@ -158,11 +177,11 @@ def tune(
             path.unlink(missing_ok=True)
         raise
 
-    kf_times = np.zeros(0)
-    if sched is not None:
-        kf_times = sched.track_for(tenv.motion).times
+
+def _result(run: Path, rollout: Any, kf_times: np.ndarray, files: dict[str, Path | None]) -> dict[str, Any]:
+    """The ``--json`` document: returns, fall time, per-keyframe segments, the files written."""
     fell = np.flatnonzero(rollout.terminated)
-    result = {
+    return {
         "run": str(run),
         "motion": rollout.motion,
         "objectives": list(rollout.objective_names),
@@ -172,12 +191,8 @@ def tune(
         "returns": dict(zip(rollout.objective_names, rollout.returns.tolist(), strict=True)),
         "mean_action_rate": float(rollout.action_rate().mean()),
         "segments": _segments(rollout, kf_times),
-        "files": {k: str(v) for k, v in (("out", out), ("plot", plot), ("video", video)) if v is not None},
+        "files": {k: str(v) for k, v in files.items() if v is not None},
     }
-    if json_:
-        print_json(result)
-        return
-    _print_table(result)
 
 
 def _print_table(result: dict[str, Any]) -> None:

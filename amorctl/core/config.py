@@ -4,8 +4,11 @@ A config is built in layers, each overriding the one before: the dataclass defau
 the ``quick`` preset), a preset file (``amorctl/presets/<name>.toml``), the user's ``--config``
 file, then command-line options. Every layer is partial TOML with the sections ``[run]``,
 ``[env]``, ``[network]`` and ``[ppo]``; a key that is not in the schema is rejected by name.
-:func:`to_toml` writes the fully resolved config (with every field's doc as a comment), which
-:func:`load_config` reads back to the same object.
+Every number has bounds in its field's metadata (``min``/``max``, ``gt`` for an exclusive lower
+bound); a value outside them is refused naming the file (or command-line flag) and the key:
+``runs/x/config.toml: [ppo] num_steps = 100000000 is out of range (1..100000)``.
+:func:`to_toml` writes the fully resolved config with ``tomlkit`` (every field's doc as a
+comment), which :func:`load_config` reads back to the same object.
 """
 
 from __future__ import annotations
@@ -19,7 +22,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, get_args, get_origin, get_type_hints
 
+import tomlkit
+
 from amorctl.core.errors import AmorError
+from amorctl.core.weights import parse_weight_pairs
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -27,21 +33,54 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
-def _doc(default: Any, text: str) -> Any:
-    """A dataclass field with a one-line doc (kept in ``metadata["doc"]``)."""
-    return field(default=default, metadata={"doc": text})
+def _doc(
+    default: Any,
+    text: str,
+    *,
+    min: float | None = None,
+    max: float | None = None,
+    gt: float | None = None,
+    choices: tuple[str, ...] | None = None,
+    max_len: int | None = None,
+) -> Any:
+    """A dataclass field with a one-line doc and its bounds, kept in the field's metadata.
+
+    ``min``/``max``: inclusive bounds of a number (of each entry of a tuple); ``gt``: exclusive
+    lower bound; ``choices``: the allowed strings; ``max_len``: the most entries of a tuple.
+    """
+    meta = {"doc": text, "min": min, "max": max, "gt": gt, "choices": choices, "max_len": max_len}
+    return field(default=default, metadata={k: v for k, v in meta.items() if v is not None})
+
+
+PRESETS: tuple[str, ...] = ("quick", "paper")
+ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
+LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
+ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
+PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
+#: The largest rollout batch (num_envs * num_steps) a config may ask for: 32x the paper's.
+MAX_BATCH = 1 << 22
+#: The longest string field (paths, ids, weight strings).
+MAX_STRING = 4096
 
 
 @dataclass(frozen=True)
 class RunConfig:
     """How long to train, with what, and how the run is recorded."""
 
-    iterations: int = _doc(1000, "training iterations (one rollout and one update each)")
-    seed: int = _doc(0, "seed of the env, the network initialisation and the action noise")
+    iterations: int = _doc(
+        1000, "training iterations (one rollout and one update each)", min=0, max=100_000_000
+    )
+    seed: int = _doc(
+        0, "seed of the env, the network initialisation and the action noise", min=0, max=2**32 - 1
+    )
     backend: str = _doc("torch-cpu", "training backend plugin (see `amorctl plugins`)")
-    checkpoint_every: int = _doc(50, "save a checkpoint every this many iterations (and on exit)")
-    keep_checkpoints: int = _doc(3, "how many recent checkpoints to keep (0 = keep all)")
-    threads: int = _doc(0, "CPU threads for the network (0 = the backend's default)")
+    checkpoint_every: int = _doc(
+        50, "save a checkpoint every this many iterations (and on exit)", min=1, max=100_000_000
+    )
+    keep_checkpoints: int = _doc(
+        3, "how many recent checkpoints to keep (0 = keep all)", min=0, max=1_000_000
+    )
+    threads: int = _doc(0, "CPU threads for the network (0 = the backend's default)", min=0, max=4096)
     tensorboard: bool = _doc(True, "also write metrics as TensorBoard scalars under tb/")
 
 
@@ -50,14 +89,22 @@ class EnvConfig:
     """Which environment is trained, and how many copies run in parallel."""
 
     kind: str = _doc(
-        "tracking", "environment: tracking (motion tracking), toy, toy-smooth (two-objective toys), gym"
+        "tracking",
+        "environment: tracking (motion tracking), toy, toy-smooth (two-objective toys), gym",
+        choices=ENV_KINDS,
     )
     character: str = _doc("biped20", "character plugin (kind=tracking)")
     dataset: str = _doc("", "motion dataset file; empty = the character's built-in default clips")
     objective_set: str = _doc("tracking7", "objective-set plugin (kind=tracking)")
-    num_envs: int = _doc(256, "environments stepped in parallel (N)")
-    episode_seconds: float = _doc(10.0, "time limit of an episode in seconds (truncation, bootstrapped)")
-    action_mode: str = _doc("residual", "tracking action: residual (PD target = reference + a) or absolute")
+    num_envs: int = _doc(256, "environments stepped in parallel (N)", min=1, max=65536)
+    episode_seconds: float = _doc(
+        10.0, "time limit of an episode in seconds (truncation, bootstrapped)", gt=0, max=3600
+    )
+    action_mode: str = _doc(
+        "residual",
+        "tracking action: residual (PD target = reference + a) or absolute",
+        choices=ACTION_MODES,
+    )
     gym_id: str = _doc("", "Gymnasium / MO-Gymnasium id with a vector reward (kind=gym)")
     fixed_weights: str = _doc("", "empty: w ~ Dirichlet(1) per episode (MOPPO); else one fixed w (PPO)")
 
@@ -66,34 +113,52 @@ class EnvConfig:
 class NetworkConfig:
     """Actor pi(a | s, c, w) and critic V(s, c, w) in R^m: ELU MLPs."""
 
-    actor_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the actor")
-    critic_hidden: tuple[int, ...] = _doc((256, 256, 256), "hidden layer widths of the critic")
-    init_std: float = _doc(0.1, "initial standard deviation of the Gaussian actions (state-independent)")
-    obs_clip: float = _doc(10.0, "normalized observations are clipped to [-obs_clip, obs_clip]")
+    actor_hidden: tuple[int, ...] = _doc(
+        (256, 256, 256), "hidden layer widths of the actor", min=1, max=8192, max_len=16
+    )
+    critic_hidden: tuple[int, ...] = _doc(
+        (256, 256, 256), "hidden layer widths of the critic", min=1, max=8192, max_len=16
+    )
+    init_std: float = _doc(
+        0.1, "initial standard deviation of the Gaussian actions (state-independent)", gt=0, max=100
+    )
+    obs_clip: float = _doc(
+        10.0, "normalized observations are clipped to [-obs_clip, obs_clip]", gt=0, max=1e6
+    )
 
 
 @dataclass(frozen=True)
 class PPOConfig:
     """MOPPO: PPO with a vector critic and advantages scalarized by each episode's weights."""
 
-    num_steps: int = _doc(24, "rollout horizon T: control steps per env per iteration")
-    num_epochs: int = _doc(5, "passes over the rollout batch per iteration")
-    num_minibatches: int = _doc(4, "minibatches per epoch (batch = num_envs * num_steps)")
-    gamma: float = _doc(0.99, "discount factor")
-    gae_lambda: float = _doc(0.95, "GAE lambda, applied per objective")
-    clip_coef: float = _doc(0.2, "PPO ratio clipping epsilon")
-    clip_value_loss: bool = _doc(True, "clip the value update around the rollout's values as PPO does")
-    value_coef: float = _doc(1.0, "weight of the value loss (mean over the batch and the m outputs)")
-    entropy_coef: float = _doc(0.0, "weight of the entropy bonus")
-    learning_rate: float = _doc(5e-5, "Adam learning rate (the start value when lr_schedule=adaptive)")
-    lr_schedule: str = _doc(
-        "adaptive", "fixed, or adaptive: scale the rate by 1.5 to keep KL near desired_kl"
+    num_steps: int = _doc(24, "rollout horizon T: control steps per env per iteration", min=1, max=100_000)
+    num_epochs: int = _doc(5, "passes over the rollout batch per iteration", min=1, max=1000)
+    num_minibatches: int = _doc(
+        4, "minibatches per epoch (batch = num_envs * num_steps)", min=1, max=MAX_BATCH
     )
-    desired_kl: float = _doc(0.02, "target KL per minibatch for the adaptive learning rate")
-    max_grad_norm: float = _doc(1.0, "clip the global gradient norm to this")
+    gamma: float = _doc(0.99, "discount factor", min=0, max=1)
+    gae_lambda: float = _doc(0.95, "GAE lambda, applied per objective", min=0, max=1)
+    clip_coef: float = _doc(0.2, "PPO ratio clipping epsilon", gt=0, max=10)
+    clip_value_loss: bool = _doc(True, "clip the value update around the rollout's values as PPO does")
+    value_coef: float = _doc(
+        1.0, "weight of the value loss (mean over the batch and the m outputs)", min=0, max=1e6
+    )
+    entropy_coef: float = _doc(0.0, "weight of the entropy bonus", min=0, max=1e6)
+    learning_rate: float = _doc(
+        5e-5, "Adam learning rate (the start value when lr_schedule=adaptive)", gt=0, max=10
+    )
+    lr_schedule: str = _doc(
+        "adaptive",
+        "fixed, or adaptive: scale the rate by 1.5 to keep KL near desired_kl",
+        choices=LR_SCHEDULES,
+    )
+    desired_kl: float = _doc(0.02, "target KL per minibatch for the adaptive learning rate", gt=0, max=100)
+    max_grad_norm: float = _doc(1.0, "clip the global gradient norm to this", gt=0, max=1e6)
     normalize_obs: bool = _doc(True, "running mean/std observation normalization (saved with the policy)")
     precision: str = _doc(
-        "auto", "fp32, bf16 (autocast; fp32 weights and losses), or auto: bf16 if the CPU has it"
+        "auto",
+        "fp32, bf16 (autocast; fp32 weights and losses), or auto: bf16 if the CPU has it",
+        choices=PRECISIONS,
     )
 
 
@@ -108,20 +173,42 @@ class TrainConfig:
 
 
 SECTIONS: dict[str, type] = {"run": RunConfig, "env": EnvConfig, "network": NetworkConfig, "ppo": PPOConfig}
-PRESETS: tuple[str, ...] = ("quick", "paper")
-ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
-LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
-ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
-PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
 
 
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    """Check one TOML value against a field's type hint; ints are accepted for floats."""
+def _range_text(meta: Mapping[str, Any]) -> str:
+    """The bounds of a field for messages: ``1..100000``, ``> 0 and <= 3600``, ``>= 0``."""
+    lo, hi, gt = meta.get("min"), meta.get("max"), meta.get("gt")
+    if gt is not None:
+        return f"> {gt:g}" + (f" and <= {hi:g}" if hi is not None else "")
+    if lo is not None and hi is not None:
+        return f"{lo:g}..{hi:g}"
+    return f">= {lo:g}" if lo is not None else f"<= {hi:g}"
+
+
+def _in_range(value: float, meta: Mapping[str, Any]) -> bool:
+    lo, hi, gt = meta.get("min"), meta.get("max"), meta.get("gt")
+    return (lo is None or value >= lo) and (hi is None or value <= hi) and (gt is None or value > gt)
+
+
+def _coerce(value: Any, hint: Any, where: str, meta: Mapping[str, Any]) -> Any:
+    """Check one TOML value against a field's type hint and bounds; ints are accepted for floats.
+
+    ``where`` is ``"<source>: [section] key"``; every message starts with it.
+    """
     if get_origin(hint) is tuple:
         (item,) = get_args(hint)[:1]
         if not isinstance(value, list | tuple):
             raise AmorError(f"{where}: expected a list of {item.__name__}, got {value!r}")
-        return tuple(_coerce(v, item, where) for v in value)
+        longest = meta.get("max_len")
+        if not value or (longest is not None and len(value) > longest):
+            raise AmorError(f"{where}: expected 1 to {longest} entries, got {len(value)}")
+        items = tuple(_coerce(v, item, where, {}) for v in value)
+        bad = [v for v in items if not _in_range(v, meta)]
+        if bad:
+            raise AmorError(
+                f"{where} = {list(items)!r}: entry {bad[0]!r} is out of range ({_range_text(meta)})"
+            )
+        return items
     if hint is bool:
         if not isinstance(value, bool):
             raise AmorError(f"{where}: expected true or false, got {value!r}")
@@ -129,26 +216,40 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise AmorError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if hint is float:
+    elif hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise AmorError(f"{where}: expected a number, got {value!r}")
         if not math.isfinite(value):
             raise AmorError(f"{where}: expected a finite number, got {value!r}")
-        return float(value)
-    if hint is str:
+        value = float(value)
+    elif hint is str:
         if not isinstance(value, str):
             raise AmorError(f"{where}: expected a string, got {value!r}")
+        choices = meta.get("choices")
+        if choices is not None and value not in choices:
+            raise AmorError(f"{where} must be one of {', '.join(choices)}, got {value!r}")
+        if len(value) > MAX_STRING or "\x00" in value:
+            raise AmorError(f"{where}: a string of at most {MAX_STRING} characters without NUL expected")
         return value
-    raise AssertionError(f"unsupported config type {hint}")  # pragma: no cover
+    else:  # pragma: no cover
+        raise AssertionError(f"unsupported config type {hint}")
+    if not _in_range(value, meta):
+        raise AmorError(f"{where} = {value!r} is out of range ({_range_text(meta)})")
+    return value
 
 
 def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") -> TrainConfig:
     """Override ``base`` with a partial config given as nested TOML data.
 
+    ``source`` names where ``data`` came from (a file, or a command-line flag such as
+    ``--num-envs``); every message starts with it.
+
     Raises:
-        AmorError: an unknown section or key (named, with the source), or a value of the wrong type.
+        AmorError: an unknown section or key (named, with the source), a value of the wrong type
+            or out of its bounds.
     """
+    if not isinstance(data, Mapping):
+        raise AmorError(f"{source}: expected tables [run], [env], [network], [ppo]")
     sections: dict[str, Any] = {}
     for section, values in data.items():
         if section not in SECTIONS:
@@ -157,12 +258,12 @@ def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") ->
             raise AmorError(f"{source}: [{section}] must be a table")
         cls = SECTIONS[section]
         hints = get_type_hints(cls)
-        known = [f.name for f in fields(cls)]
+        schema = {f.name: f for f in fields(cls)}
         changes = {}
         for key, value in values.items():
-            if key not in known:
-                raise AmorError(f"{source}: unknown key {key!r} in [{section}] (known: {', '.join(known)})")
-            changes[key] = _coerce(value, hints[key], f"{source}: [{section}] {key}")
+            if key not in schema:
+                raise AmorError(f"{source}: unknown key {key!r} in [{section}] (known: {', '.join(schema)})")
+            changes[key] = _coerce(value, hints[key], f"{source}: [{section}] {key}", schema[key].metadata)
         sections[section] = dataclasses.replace(getattr(base, section), **changes)
     return validate(dataclasses.replace(base, **sections), source)
 
@@ -177,41 +278,34 @@ def override(base: TrainConfig, **dotted: Any) -> TrainConfig:
 
 
 def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
-    """Check ranges and choices; returns ``config`` unchanged.
+    """Check every field's bounds and the rules between fields; returns ``config`` unchanged.
 
     Raises:
-        AmorError: naming the first bad field.
+        AmorError: naming ``source`` and the first bad field.
     """
-    r, e, n, p = config.run, config.env, config.network, config.ppo
+    for section, cls in SECTIONS.items():
+        obj = getattr(config, section)
+        hints = get_type_hints(cls)
+        for f in fields(obj):
+            _coerce(getattr(obj, f.name), hints[f.name], f"{source}: [{section}] {f.name}", f.metadata)
+    e, p = config.env, config.ppo
+    batch = e.num_envs * p.num_steps
     checks = [
-        (r.iterations >= 0, "[run] iterations must be >= 0"),
-        (r.checkpoint_every >= 1, "[run] checkpoint_every must be >= 1"),
-        (r.keep_checkpoints >= 0, "[run] keep_checkpoints must be >= 0"),
-        (r.threads >= 0, "[run] threads must be >= 0"),
-        (e.kind in ENV_KINDS, f"[env] kind must be one of {', '.join(ENV_KINDS)}, got {e.kind!r}"),
-        (e.num_envs >= 1, "[env] num_envs must be >= 1"),
-        (e.episode_seconds > 0, "[env] episode_seconds must be > 0"),
         (e.kind != "gym" or bool(e.gym_id), "[env] gym_id is required when kind = 'gym'"),
-        (e.action_mode in ACTION_MODES, f"[env] action_mode must be one of {', '.join(ACTION_MODES)}"),
-        (all(h >= 1 for h in n.actor_hidden + n.critic_hidden), "[network] layer widths must be >= 1"),
-        (n.init_std > 0, "[network] init_std must be > 0"),
-        (n.obs_clip > 0, "[network] obs_clip must be > 0"),
-        (p.num_steps >= 1, "[ppo] num_steps must be >= 1"),
-        (p.num_epochs >= 1, "[ppo] num_epochs must be >= 1"),
-        (p.num_minibatches >= 1, "[ppo] num_minibatches must be >= 1"),
-        (p.num_minibatches <= e.num_envs * p.num_steps, "[ppo] num_minibatches exceeds the batch size"),
-        (0 <= p.gamma <= 1, "[ppo] gamma must be in [0, 1]"),
-        (0 <= p.gae_lambda <= 1, "[ppo] gae_lambda must be in [0, 1]"),
-        (p.clip_coef > 0, "[ppo] clip_coef must be > 0"),
-        (p.learning_rate > 0, "[ppo] learning_rate must be > 0"),
-        (p.lr_schedule in LR_SCHEDULES, f"[ppo] lr_schedule must be one of {', '.join(LR_SCHEDULES)}"),
-        (p.desired_kl > 0, "[ppo] desired_kl must be > 0"),
-        (p.max_grad_norm > 0, "[ppo] max_grad_norm must be > 0"),
-        (p.precision in PRECISIONS, f"[ppo] precision must be one of {', '.join(PRECISIONS)}"),
+        (
+            batch <= MAX_BATCH,
+            f"[env] num_envs x [ppo] num_steps = {batch} exceeds the largest rollout batch ({MAX_BATCH})",
+        ),
+        (
+            p.num_minibatches <= batch,
+            f"[ppo] num_minibatches = {p.num_minibatches} exceeds the batch size ({batch})",
+        ),
     ]
     for ok, message in checks:
         if not ok:
             raise AmorError(f"{source}: {message}")
+    if e.fixed_weights and e.fixed_weights.strip().lower() != "uniform":
+        parse_weight_pairs(e.fixed_weights, source=f"{source}: [env] fixed_weights")
     return config
 
 
@@ -224,6 +318,10 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise AmorError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise AmorError(f"{path}: not valid TOML: nested too deeply") from None
+    except OSError as exc:
+        raise AmorError(f"{path}: cannot read the config file: {exc.strerror}") from None
 
 
 def load_config(path: str | Path, base: TrainConfig | None = None) -> TrainConfig:
@@ -243,31 +341,21 @@ def load_preset(name: str) -> TrainConfig:
     return load_config(preset_path(name))
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return repr(value)
-    if isinstance(value, str):
-        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
-        return f'"{escaped}"'
-    if isinstance(value, tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise AssertionError(f"unsupported config value {value!r}")  # pragma: no cover
-
-
 def to_toml(config: TrainConfig) -> str:
-    """The fully resolved config as TOML, one commented line per field; ``merge`` reads it back."""
-    lines = ["# amorctl training config, fully resolved", ""]
+    """The fully resolved config as TOML (written by tomlkit), each field with its doc as a
+    comment; :func:`load_config` reads it back to an equal config."""
+    doc = tomlkit.document()
+    doc.add(tomlkit.comment("amorctl training config, fully resolved"))
     for section in SECTIONS:
         obj = getattr(config, section)
-        lines.append(f"[{section}]")
+        table = tomlkit.table()
         for f in fields(obj):
-            lines.append(f"{f.name} = {_toml_value(getattr(obj, f.name))}  # {f.metadata['doc']}")
-        lines.append("")
-    return "\n".join(lines)
+            value = getattr(obj, f.name)
+            item = tomlkit.item(list(value) if isinstance(value, tuple) else value)
+            item.comment(f.metadata["doc"])
+            table.add(f.name, item)
+        doc.add(section, table)
+    return tomlkit.dumps(doc)
 
 
 def config_docs() -> dict[str, dict[str, str]]:

@@ -56,7 +56,8 @@ class Trainer(Protocol):
         """Collect one rollout, update the networks; return this iteration's metrics.
 
         Metric names are ``/``-separated (``loss/value``, ``return/up``, ``explained_variance/up``,
-        ``env_steps_per_s``, ...), values are plain floats (NaN where undefined).
+        ``env_steps_per_s``, ...), values are plain floats (NaN where undefined). ``iteration``
+        (the count after this one) is always present: the run's metrics rows are keyed by it.
         """
         ...
 

@@ -28,10 +28,8 @@ weights exactly at its time. Before the first keyframe the first is held, after 
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import re
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -39,9 +37,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+import tomlkit
 
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
+from amorctl.core.weights import normalize_weights
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -54,7 +54,8 @@ INTERPOLATIONS: tuple[str, ...] = ("linear", "step")
 _TOP_KEYS = {"interpolation", "default", "keyframe", "motion"}
 _MOTION_KEYS = {"interpolation", "default", "keyframe"}
 _KEYFRAME_KEYS = {"t", "weights"}
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+#: A schedule is a few keyframes; a file larger than this is refused before parsing.
+MAX_SCHEDULE_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -199,13 +200,12 @@ def _parse_track(
             if value < 0:
                 raise AmorError(f"{label}: weight {name} = {value} is negative; weights must be >= 0")
             raw[names.index(name)] = float(value)
-        total = raw.sum()
-        if total <= 0:
+        if not (raw > 0).any():
             raise AmorError(
                 f"{label}: all weights are zero (objectives left out take default = {default:g}); "
                 "at least one objective needs a positive weight"
             )
-        rows[i] = raw / total
+        rows[i] = normalize_weights(raw, source=label)  # overflow-safe: 1e308 + 1e308 is fine
     times.flags.writeable = False
     rows.flags.writeable = False
     return Track(times=times, weights=rows, interpolation=interpolation)
@@ -294,10 +294,14 @@ def load_schedule(
         raise AmorError(f"schedule {p}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise AmorError(f"schedule {p}: cannot read ({exc})") from None
+    if len(text) > MAX_SCHEDULE_BYTES:
+        raise AmorError(f"schedule {p}: larger than {MAX_SCHEDULE_BYTES} characters; not a schedule")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise AmorError(f"schedule {p}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise AmorError(f"schedule {p}: malformed TOML: nested too deeply") from None
     return parse_schedule(data, objective_names, motion_names, source=str(p))
 
 
@@ -305,10 +309,6 @@ def load_schedule(
 
 KeyframeLike = tuple[float, np.ndarray | Sequence[float] | Mapping[str, float]]
 """A keyframe to save: (t seconds, weights as [m] in objective order or name -> raw weight)."""
-
-
-def _toml_key(name: str) -> str:
-    return name if _BARE_KEY.match(name) else json.dumps(name)
 
 
 def _keyframe_rows(
@@ -333,12 +333,17 @@ def _keyframe_rows(
     return track.times, track.weights
 
 
-def _format_keyframes(prefix: str, times: np.ndarray, weights: np.ndarray, names: Sequence[str]) -> list[str]:
-    lines = []
+def _keyframe_tables(times: np.ndarray, weights: np.ndarray, names: Sequence[str]) -> tomlkit.items.AoT:
+    """[[keyframe]] tables: t and every objective's normalized weight (an inline table)."""
+    aot = tomlkit.aot()
     for t, row in zip(times, weights, strict=True):
-        pairs = ", ".join(f"{_toml_key(n)} = {float(v)!r}" for n, v in zip(names, row, strict=True))
-        lines += ["", f"[[{prefix}]]", f"t = {float(t)!r}", f"weights = {{ {pairs} }}"]
-    return lines
+        table = tomlkit.table()
+        table.add("t", float(t))
+        inline = tomlkit.inline_table()
+        inline.update({n: float(v) for n, v in zip(names, row, strict=True)})
+        table.add("weights", inline)
+        aot.append(table)
+    return aot
 
 
 def dump_schedule(
@@ -372,19 +377,25 @@ def dump_schedule(
         raise AmorError(f'{where}: interpolation must be "linear" or "step", got {interpolation!r}')
     if not keyframes and not motion_keyframes:
         raise AmorError(f"{where}: no keyframes to save")
-    lines = [
-        "# amorctl weight schedule (docs/schedules.md); weights are normalized onto the simplex",
-        f"interpolation = {json.dumps(interpolation)}",
-    ]
+    doc = tomlkit.document()
+    doc.add(
+        tomlkit.comment(
+            "amorctl weight schedule (docs/schedules.md); weights are normalized onto the simplex"
+        )
+    )
+    doc.add("interpolation", interpolation)
     if keyframes:
         times, weights = _keyframe_rows(keyframes, names, where)
-        lines += _format_keyframes("keyframe", times, weights, names)
-    for motion, kfs in (motion_keyframes or {}).items():
-        mwhere = f"{where}: motion {motion!r}"
-        if not kfs:
-            raise AmorError(f"{mwhere}: no keyframes to save")
-        times, weights = _keyframe_rows(kfs, names, mwhere)
-        key = _toml_key(motion)
-        lines += ["", f"[motion.{key}]"]
-        lines += _format_keyframes(f"motion.{key}.keyframe", times, weights, names)
-    atomic_write_text(path, "\n".join(lines) + "\n")
+        doc.add("keyframe", _keyframe_tables(times, weights, names))
+    if motion_keyframes:
+        motions = tomlkit.table(is_super_table=True)
+        for motion, kfs in motion_keyframes.items():
+            mwhere = f"{where}: motion {motion!r}"
+            if not kfs:
+                raise AmorError(f"{mwhere}: no keyframes to save")
+            times, weights = _keyframe_rows(kfs, names, mwhere)
+            table = tomlkit.table()
+            table.add("keyframe", _keyframe_tables(times, weights, names))
+            motions.add(motion, table)
+        doc.add("motion", motions)
+    atomic_write_text(path, tomlkit.dumps(doc))

@@ -1,4 +1,4 @@
-"""What plugins provide: character specs, objective sets and backends.
+"""What plugins provide: character specs, objective sets, backends and motion formats.
 
 These are plain frozen dataclasses (and one protocol) so that plugins stay declarative and the
 registry can describe them without running anything. Angles are radians, lengths metres,
@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     from amorctl.core.contracts import Backend, ObjectiveSet
@@ -24,7 +24,13 @@ KEYPOINTS: tuple[str, ...] = ("root", "head", "left_hand", "right_hand", "left_f
 
 @dataclass(frozen=True)
 class JointSpec:
-    """One actuated hinge joint; its MJCF joint and actuator share ``name``."""
+    """One actuated hinge joint, found by ``name`` in the MJCF; its actuator is the one of the same
+    name, else the one whose joint transmission drives it.
+
+    ``kp``, ``kd`` and ``torque_limit`` are enforced: written into position actuators (``pd``) or
+    used by the servo model (``servo``). ``armature``, ``friction_coulomb`` and ``friction_viscous``
+    are written into the joint when given; ``None`` keeps the model file's value.
+    """
 
     name: str
     group: JointGroup
@@ -32,6 +38,9 @@ class JointSpec:
     kp: float  # PD stiffness, N·m/rad
     kd: float  # PD damping, N·m·s/rad
     torque_limit: float  # N·m, symmetric
+    armature: float | None = None  # reflected rotor inertia, kg·m²
+    friction_coulomb: float | None = None  # MuJoCo frictionloss, N·m
+    friction_viscous: float | None = None  # MuJoCo damping, N·m·s/rad
 
 
 @dataclass(frozen=True)
@@ -77,6 +86,11 @@ class CharacterSpec:
     physics_hz: int = 250
     control_hz: int = 50
     licence: str = ""
+    #: How a skeleton animation becomes this character's motion: ``"direct"`` maps the canonical
+    #: source joints onto same-named hinges (only for a character built on the DeepMimic
+    #: skeleton, like ``humanoid36``); ``"ik"`` solves key-point inverse kinematics (any humanoid).
+    retarget: Literal["direct", "ik"] = "ik"
+    add_floor: bool = True  # add a ground plane at z = 0 when the model has no plane/height field
 
     @property
     def substeps(self) -> int:
@@ -116,3 +130,39 @@ class BackendSpec:
     name: str
     description: str
     make: Callable[..., Backend]
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """What a motion importer may need besides the file.
+
+    name: clip name to give (default: the file stem); joint_map: path of a TOML joint map (BVH);
+    character: target character name (formats already in a character's joints check against it);
+    joint_names: that character's actuated joints, in order; root_body: its root body name;
+    licence: recorded in the dataset; extra: format-specific options.
+    """
+
+    name: str | None = None
+    joint_map: Path | None = None
+    character: str | None = None
+    joint_names: tuple[str, ...] = ()
+    root_body: str | None = None
+    licence: str = "unknown (user-supplied file)"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MotionFormatSpec:
+    """A motion file format: its name, the file suffixes that imply it, and its loader.
+
+    ``load(path, options)`` reads one file and returns a
+    :class:`amorctl.motion.source.SourceMotion` (a skeleton animation, to be retargeted) or a
+    :class:`amorctl.motion.source.CharacterMotion` (already in ``options.character``'s joints);
+    it raises :class:`amorctl.core.errors.AmorError` naming the file on any defect. The return type
+    is checked when a file is imported (the motion records live in ``motion/``, above this layer).
+    """
+
+    name: str
+    suffixes: tuple[str, ...]  # lower-case, with the dot: (".bvh",)
+    load: Callable[[Path, ImportOptions], Any]
+    description: str = ""

@@ -14,71 +14,92 @@ import numpy as np
 from amorctl.core.errors import AmorError
 
 
-def parse_weights(text: str, names: Sequence[str], *, default: float = 0.0) -> np.ndarray:
+def parse_weight_pairs(text: str, *, source: str = "weights") -> list[tuple[str, float]]:
+    """Parse the syntax of ``"up=2,smooth=1"`` into (name, value) pairs, without knowing the names.
+
+    Raises:
+        AmorError: starting with ``source``: empty text, an empty item (``up=1,,lo=1``), a pair
+            without ``=``, a repeated name, or a value that is not a finite number >= 0.
+    """
+    stripped = text.strip()
+    if not stripped:
+        raise AmorError(f"{source}: empty weights; give name=value pairs (or 'uniform')")
+    pairs: list[tuple[str, float]] = []
+    for part in stripped.split(","):
+        part = part.strip()
+        if not part:
+            raise AmorError(f"{source}: empty item in {text!r} (two commas in a row or a trailing comma)")
+        if "=" not in part:
+            raise AmorError(f"{source}: {part!r} is not name=value")
+        key, _, value = (s.strip() for s in part.partition("="))
+        if not key:
+            raise AmorError(f"{source}: {part!r} has no objective name before '='")
+        if any(key == k for k, _ in pairs):
+            raise AmorError(f"{source}: objective {key!r} given twice")
+        try:
+            number = float(value)
+        except ValueError:
+            raise AmorError(f"{source}: {key}={value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise AmorError(f"{source}: {key}={value} is not finite")
+        if number < 0:
+            raise AmorError(f"{source}: {key}={value} is negative; weights must be >= 0")
+        pairs.append((key, number))
+    return pairs
+
+
+def parse_weights(
+    text: str, names: Sequence[str], *, default: float = 0.0, source: str = "weights"
+) -> np.ndarray:
     """Parse ``"up=2,smooth=1"`` into a weight vector on the simplex, ordered as ``names``.
 
     Objectives not named get ``default`` before normalization. ``"uniform"`` gives 1/m each.
-    Values are normalized to sum to 1, so ``up=2,smooth=1`` and ``up=0.66,smooth=0.33`` agree.
+    Values are normalized to sum to 1, so ``up=2,smooth=1`` and ``up=0.66,smooth=0.33`` agree;
+    the normalization cannot overflow (``up=1e308,lo=1e308`` is ``up=0.5,lo=0.5``).
 
     Args:
         text: comma-separated ``name=value`` pairs (spaces allowed) or ``"uniform"``.
         names: the objective names, in reward order (m of them).
         default: the raw value of objectives the text leaves out.
+        source: where the text came from (``--weights``, ``[env] fixed_weights``), starts messages.
 
     Returns:
         [m] float64 weights, non-negative, summing to 1.
 
     Raises:
-        AmorError: empty text, a pair without ``=``, an unknown or repeated name, a value that is
-            not a finite non-negative number, or all values zero.
+        AmorError: naming ``source``: empty text, an empty item, a pair without ``=``, an unknown
+            or repeated name, a value that is not a finite non-negative number, or all values zero.
     """
     names = list(names)
-    stripped = text.strip()
-    if stripped.lower() == "uniform":
+    if text.strip().lower() == "uniform":
         return np.full(len(names), 1.0 / len(names))
-    if not stripped:
-        raise AmorError(f"empty weights; give name=value pairs for the objectives {', '.join(names)}")
     raw = np.full(len(names), float(default))
-    seen: set[str] = set()
-    for part in stripped.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "=" not in part:
-            raise AmorError(f"weights: {part!r} is not name=value (objectives: {', '.join(names)})")
-        key, _, value = (s.strip() for s in part.partition("="))
+    for key, number in parse_weight_pairs(text, source=source):
         if key not in names:
-            raise AmorError(f"weights: unknown objective {key!r} (objectives: {', '.join(names)})")
-        if key in seen:
-            raise AmorError(f"weights: objective {key!r} given twice")
-        seen.add(key)
-        try:
-            number = float(value)
-        except ValueError:
-            raise AmorError(f"weights: {key}={value!r} is not a number") from None
-        if not math.isfinite(number):
-            raise AmorError(f"weights: {key}={value} is not finite")
-        if number < 0:
-            raise AmorError(f"weights: {key}={value} is negative; weights must be >= 0")
+            raise AmorError(f"{source}: unknown objective {key!r} (objectives: {', '.join(names)})")
         raw[names.index(key)] = number
-    return normalize_weights(raw)
+    return normalize_weights(raw, source=source)
 
 
-def normalize_weights(raw: np.ndarray) -> np.ndarray:
+def normalize_weights(raw: np.ndarray, *, source: str = "weights") -> np.ndarray:
     """Project non-negative raw weights [..., m] onto the simplex by dividing by their sum.
 
+    Each row is first divided by its largest entry, so the sum is at most m and cannot overflow
+    even for entries near the float maximum.
+
     Raises:
-        AmorError: a negative or non-finite entry, or a row that sums to zero.
+        AmorError: naming ``source``: a negative or non-finite entry, or a row that sums to zero.
     """
     raw = np.asarray(raw, dtype=np.float64)
     if not np.all(np.isfinite(raw)):
-        raise AmorError("weights must be finite")
+        raise AmorError(f"{source}: weights must be finite")
     if np.any(raw < 0):
-        raise AmorError("weights must be >= 0")
-    total = raw.sum(axis=-1, keepdims=True)
-    if np.any(total <= 0):
-        raise AmorError("weights are all zero; at least one objective needs a positive weight")
-    return raw / total
+        raise AmorError(f"{source}: weights must be >= 0")
+    peak = raw.max(axis=-1, keepdims=True) if raw.size else raw
+    if raw.shape[-1] == 0 or np.any(peak <= 0):
+        raise AmorError(f"{source}: weights are all zero; at least one objective needs a positive weight")
+    scaled = raw / peak
+    return scaled / scaled.sum(axis=-1, keepdims=True)
 
 
 def sample_dirichlet(rng: np.random.Generator, n: int, m: int, alpha: float = 1.0) -> np.ndarray:

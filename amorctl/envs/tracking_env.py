@@ -24,6 +24,8 @@ from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features, split_frame
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weights import sample_dirichlet
+from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
 from amorctl.sim.batch_sim import BatchSim
@@ -109,10 +111,17 @@ class TrackingEnv:
         self.joint_low = np.array([j.range[0] for j in ch.joints])
         self.joint_high = np.array([j.range[1] for j in ch.joints])
 
-        # Reference data. Rewards compare the simulator's frame features with features computed
-        # from the library's world-frame arrays by the same function; the context shows m_t as
-        # the library stores it (they agree when the library follows its documented layout).
-        lib = library
+        self._init_reference(library, clips, env_clips)
+        self._init_layout(library.latent_dim, m)
+        self._init_state(seed)
+
+    def _init_reference(
+        self, lib: MotionLibrary, clips: Sequence[int] | None, env_clips: np.ndarray | None
+    ) -> None:
+        """Reference arrays from the library, and the clips episodes draw from."""
+        # Rewards compare the simulator's frame features with features computed from the
+        # library's world-frame arrays by the same function; the context shows m_t as the library
+        # stores it (they agree when the library follows its documented layout).
         self.ref_frames = frame_features(
             lib.root_pos, lib.root_quat, lib.root_lin_vel, lib.root_ang_vel, lib.joint_pos,
             lib.joint_vel, lib.ee_pos, lib.ee_quat, lib.ee_lin_vel,
@@ -122,7 +131,7 @@ class TrackingEnv:
             warnings.warn(
                 f"motion library frames differ from the world-frame arrays by up to "
                 f"{self.frame_mismatch:.3g}; rewards use the world-frame arrays",
-                stacklevel=2,
+                stacklevel=3,
             )
         self.context_frames = np.asarray(lib.frames, dtype=np.float32)
         self.latents = np.asarray(lib.z, dtype=np.float32)
@@ -135,7 +144,10 @@ class TrackingEnv:
         self.env_clips: np.ndarray | None = None
         self.select_clips(clips, env_clips)
 
-        d, lat = frame_dim(jn, e), lib.latent_dim
+    def _init_layout(self, latent_dim: int, m: int) -> None:
+        """The observation layout (docs/observations.md) and the observation and action sizes."""
+        jn = self.num_joints
+        d = frame_dim(jn, self.num_ee)
         self.frame_dim = d
         self.obs_layout: dict[str, slice] = {}
         o = 0
@@ -143,7 +155,7 @@ class TrackingEnv:
             ("proprio", d),
             ("prev_targets", 2 * jn),
             ("ref_frame", d),
-            ("latent", lat),
+            ("latent", latent_dim),
             ("future_frames", d * len(self.future_frames)),
             ("weights", m),
         ):
@@ -152,6 +164,9 @@ class TrackingEnv:
         self.obs_dim = o
         self.action_dim = jn
 
+    def _init_state(self, seed: int | None) -> None:
+        """The per-env state arrays (zeros until the first reset) and the generator."""
+        n, m, jn, e = self.num_envs, self.m, self.num_joints, self.num_ee
         self._rng = np.random.default_rng(seed)
         self.ref_idx = np.zeros(n, dtype=np.int64)  # frame the current state corresponds to
         self.clip_end = np.zeros(n, dtype=np.int64)  # exclusive end of that frame's clip
@@ -273,6 +288,10 @@ class TrackingEnv:
                 raise AmorError(f"env_clips must have one clip per env ({self.num_envs}), got {per_env.size}")
             self.env_clips = per_env
 
+    def tracking_view(self) -> TrackingEnvView:
+        """The :class:`~amorctl.core.contracts.TrackingView` analysis reads this env through."""
+        return TrackingEnvView(self)
+
     def close(self) -> None:
         """Release the simulation's thread pool."""
         self.sim.close()
@@ -369,7 +388,7 @@ class TrackingEnv:
         if self.fixed_weights is not None:
             self._weights[ids] = self.fixed_weights
         else:
-            self._weights[ids] = sample_weights(self._rng, len(ids), self.m)
+            self._weights[ids] = sample_dirichlet(self._rng, len(ids), self.m)
 
     def _sim_frames(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """[k, D] heading-frame features of the simulated state."""
@@ -397,11 +416,6 @@ class TrackingEnv:
         parts += [self.context_frames[np.minimum(nxt + o, last)] for o in self.future_frames]
         parts.append(self._weights[sel])
         return np.concatenate(parts, axis=-1, dtype=np.float32)
-
-
-def sample_weights(rng: np.random.Generator, k: int, m: int) -> np.ndarray:
-    """k weight vectors ~ Dirichlet(1, ..., 1) on the m-simplex. Returns [k, m] float32."""
-    return rng.dirichlet(np.ones(m), size=k).astype(np.float32)
 
 
 def _check_weights(w: np.ndarray, m: int) -> np.ndarray:

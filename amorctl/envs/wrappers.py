@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 
@@ -50,6 +51,12 @@ class FixedWeights:
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)
 
+    def tracking_view(self) -> Any:
+        """The wrapped env's :class:`~amorctl.core.contracts.TrackingView` reporting these weights
+        (None when the wrapped env has none)."""
+        view = tracking_view(self.env)
+        return None if view is None else _WeightsOf(view, self)
+
     @property
     def weights(self) -> np.ndarray:
         """[N, m] float32: ``fixed`` in every row."""
@@ -71,3 +78,19 @@ class FixedWeights:
         info = dict(info)
         info["final_obs"] = self._patch(info["final_obs"])
         return self._patch(obs), rewards, terminated, truncated, info
+
+
+class _WeightsOf:
+    """A :class:`~amorctl.core.contracts.TrackingView` whose ``weights`` are a wrapper's."""
+
+    def __init__(self, view: Any, wrapper: FixedWeights) -> None:
+        self._view = view
+        self._wrapper = wrapper
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._view, name)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """[N, m] float32, the wrapper's weights in force."""
+        return self._wrapper.weights

@@ -13,6 +13,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
+from amorctl.sim.geom_bottom import geom_lowest_z
 from amorctl.sim.model import load_model
 
 
@@ -77,23 +78,8 @@ class CharacterKinematics:
         ]
 
     def geom_bottom(self, g: int) -> float:
-        """Lowest z of one geom (exact for sphere, capsule, box, cylinder; bounding sphere else)."""
-        m, d = self.model, self.data
-        z = d.geom_xpos[g, 2]
-        size = m.geom_size[g]
-        rot_z = d.geom_xmat[g].reshape(3, 3)[2]  # row 2: the world-z component of each local axis
-        kind = m.geom_type[g]
-        if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-            return float(z - size[0])
-        if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-            return float(z - abs(rot_z[2]) * size[1] - size[0])
-        if kind == mujoco.mjtGeom.mjGEOM_BOX:
-            return float(z - np.abs(rot_z) @ size)
-        if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-            return float(z - abs(rot_z[2]) * size[1] - np.sqrt(max(0.0, 1.0 - rot_z[2] ** 2)) * size[0])
-        if kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-            return float(z - np.sqrt((rot_z**2) @ (size**2)))
-        return float(z - m.geom_rbound[g])
+        """Lowest z of one geom: exact for primitives and meshes (:mod:`amorctl.sim.geom_bottom`)."""
+        return geom_lowest_z(self.model, self.data, g)
 
 
 def character_kinematics(spec: CharacterSpec) -> CharacterKinematics:

@@ -25,6 +25,7 @@ from amorctl.motion.frames import clip_arrays, frame_layout
 from amorctl.motion.kinematics import CharacterKinematics, character_kinematics
 from amorctl.motion.resample import resample_character, resample_source
 from amorctl.motion.retarget import retarget
+from amorctl.motion.retarget.robot import finish_robot_clip
 from amorctl.motion.source import CharacterMotion
 from amorctl.motion.vae import VaeConfig, encode, encoder_to_bytes, train_vae
 from amorctl.registry import get_registry
@@ -59,16 +60,19 @@ class PreprocessReport:
 
 
 def gather_inputs(
-    files: Sequence[Path], builtin: str | None, fmt: str | None = None
+    files: Sequence[Path], builtin: str | None, fmt: str | None = None, licence: str | None = None
 ) -> list[tuple[str | None, Path, str, str | None]]:
     """(clip name or None for the importer's default, path, licence, format or None to infer) of
-    every input, in order; ``fmt`` applies to ``files`` only (built-in clips know their format)."""
+    every input, in order; ``fmt`` applies to ``files`` only (built-in clips know their format),
+    and so does ``licence`` (default: DeepMimic's for pybullet_data files, else "unknown")."""
     inputs: list[tuple[str | None, Path, str, str | None]] = []
     if builtin:
         inputs += [(name, path, DEEPMIMIC_LICENCE, "deepmimic") for name, path in builtin_clips(builtin)]
     for f in files:
         path = Path(f)
         lic = DEEPMIMIC_LICENCE if source_label(path).startswith("pybullet_data/") else USER_LICENCE
+        if licence:
+            lic = licence
         inputs.append((None, path, lic, fmt))
     if not inputs:
         raise AmorError("no motion given: pass FILES and/or --builtin deepmimic")
@@ -98,7 +102,7 @@ def process_clip(
     if isinstance(motion, CharacterMotion):
         if motion.character != spec.name:
             raise AmorError(f"{path}: holds motion for {motion.character!r}, not {spec.name!r}")
-        char = resample_character(motion, hz)
+        char = finish_robot_clip(resample_character(motion, hz), kin)
     else:
         char = retarget(resample_source(motion, hz), kin)
     char = replace(char, source=source_label(path))
@@ -120,23 +124,14 @@ def preprocess(
     joint_map: Path | None = None,
     vae: VaeConfig | None = VaeConfig(),  # noqa: B008 - frozen dataclass, safe as a default
     progress: Progress | None = None,
+    licence: str | None = None,
 ) -> PreprocessReport:
     """Build a motion dataset at ``out``; AmorError (and no file) on any bad input."""
     progress = progress or Progress()
     t0 = time.perf_counter()
     spec = get_registry().character(character)
     kin = character_kinematics(spec)
-    inputs = gather_inputs(files, builtin, fmt)
-    motions: list[CharacterMotion] = []
-    per_clip: list[dict[str, np.ndarray]] = []
-    for i, (name, path, licence, clip_fmt) in enumerate(inputs):
-        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map)
-        if any(m.name == char.name for m in motions):
-            raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
-        motions.append(char)
-        per_clip.append(arrays)
-        if progress.clip:
-            progress.clip(i + 1, len(inputs), char.name)
+    motions, per_clip = _process_clips(gather_inputs(files, builtin, fmt, licence), kin, joint_map, progress)
     t1 = time.perf_counter()
 
     lengths = np.array([a["frames"].shape[0] for a in per_clip], dtype=np.int64)
@@ -146,55 +141,12 @@ def preprocess(
     encoder_bytes = None
     z = np.zeros((flat["frames"].shape[0], 0), dtype=np.float32)
     if vae is not None:
-        names = [m.name for m in motions]
         if builtin == "deepmimic" and not vae.holdout and not files:
             vae = replace(vae, holdout=DEEPMIMIC_HOLDOUT)
-        trained = train_vae(flat["frames"], starts, lengths, vae, progress=progress.vae_step, names=names)
-        z = encode(trained.encoder, trained.mean, trained.std, flat["frames"], starts, lengths, vae.window)
-        encoder_bytes = encoder_to_bytes(trained, flat["frames"].shape[1])
-        vae_held = [names[k] for k in trained.heldout_clips]
-        vae_info = {
-            **asdict(vae),
-            "padding": "edge (clamp to the clip's first/last frame)",
-            "heldout_clips": vae_held,
-            "heldout_recon_mse": trained.heldout_error,
-            "heldout_recon_mse_per_clip": dict(zip(vae_held, trained.heldout_per_clip, strict=True)),
-            "untrained_heldout_recon_mse": trained.untrained_error,
-            "train_recon_mse": trained.train_error,
-            "error_units": "mean squared error per feature of standardised frames",
-        }
+        z, encoder_bytes, vae_info = _vae_latents(flat["frames"], starts, lengths, motions, vae, progress)
     t2 = time.perf_counter()
 
-    clips = tuple(
-        ClipInfo(
-            name=m.name,
-            source=m.source,
-            sha256=m.sha256,
-            licence=m.licence,
-            start=int(s),
-            num_frames=int(n),
-            source_fps=float(m.source_fps),
-            retarget_error=float(m.retarget_error),
-        )
-        for m, s, n in zip(motions, starts, lengths, strict=True)
-    )
-    layout = frame_layout(spec.num_joints, len(spec.end_effectors))
-    library = MotionLibrary(
-        character=spec.name,
-        fps=float(spec.control_hz),
-        joint_names=spec.joint_names(),
-        end_effectors=tuple(spec.end_effectors),
-        clips=clips,
-        frames=flat["frames"],
-        z=z,
-        metadata={
-            "frame_layout": layout,
-            "vae": vae_info,
-            "keypoints": dict(spec.keypoints),
-            "velocities": "forward finite differences at fps; last frame repeats the previous",
-        },
-        **{k: v for k, v in flat.items() if k != "frames"},
-    )
+    library = _library(kin, motions, starts, lengths, flat, z, vae_info)
     clip_stats = {m.name: {**m.stats, "duration_s": float(m.times[-1])} for m in motions}
     write_dataset(out, library, clip_stats=clip_stats, encoder=encoder_bytes)
     t3 = time.perf_counter()
@@ -208,7 +160,7 @@ def preprocess(
             "retarget_error_m": c.retarget_error,
             **_short_stats(clip_stats[c.name]),
         }
-        for c in clips
+        for c in library.clips
     ]
     return PreprocessReport(
         out=Path(out),
@@ -221,6 +173,99 @@ def preprocess(
     )
 
 
+def _process_clips(
+    inputs: list[tuple[str | None, Path, str, str | None]],
+    kin: CharacterKinematics,
+    joint_map: Path | None,
+    progress: Progress,
+) -> tuple[list[CharacterMotion], list[dict[str, np.ndarray]]]:
+    """:func:`process_clip` on every input, in order; clip names must be unique."""
+    motions: list[CharacterMotion] = []
+    per_clip: list[dict[str, np.ndarray]] = []
+    for i, (name, path, licence, clip_fmt) in enumerate(inputs):
+        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map)
+        if any(m.name == char.name for m in motions):
+            raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
+        motions.append(char)
+        per_clip.append(arrays)
+        if progress.clip:
+            progress.clip(i + 1, len(inputs), char.name)
+    return motions, per_clip
+
+
+def _vae_latents(
+    frames: np.ndarray,
+    starts: np.ndarray,
+    lengths: np.ndarray,
+    motions: list[CharacterMotion],
+    vae: VaeConfig,
+    progress: Progress,
+) -> tuple[np.ndarray, bytes, dict[str, Any]]:
+    """Train the VAE on frames [F, D] (clips at ``starts``/``lengths``); returns z [F, L], the
+    encoder file's bytes and the dataset's ``vae`` metadata."""
+    names = [m.name for m in motions]
+    trained = train_vae(frames, starts, lengths, vae, progress=progress.vae_step, names=names)
+    z = encode(trained.encoder, trained.mean, trained.std, frames, starts, lengths, vae.window)
+    encoder_bytes = encoder_to_bytes(trained, frames.shape[1])
+    vae_held = [names[k] for k in trained.heldout_clips]
+    info = {
+        **asdict(vae),
+        "padding": "edge (clamp to the clip's first/last frame)",
+        "heldout_clips": vae_held,
+        "heldout_recon_mse": trained.heldout_error,
+        "heldout_recon_mse_per_clip": dict(zip(vae_held, trained.heldout_per_clip, strict=True)),
+        "untrained_heldout_recon_mse": trained.untrained_error,
+        "train_recon_mse": trained.train_error,
+        "error_units": "mean squared error per feature of standardised frames",
+    }
+    return z, encoder_bytes, info
+
+
+def _library(
+    kin: CharacterKinematics,
+    motions: list[CharacterMotion],
+    starts: np.ndarray,
+    lengths: np.ndarray,
+    flat: dict[str, np.ndarray],
+    z: np.ndarray,
+    vae_info: dict[str, Any] | None,
+) -> MotionLibrary:
+    """The in-memory dataset: every clip's arrays concatenated (``flat``), latents ``z`` [F, L]."""
+    spec = kin.spec
+    clips = tuple(
+        ClipInfo(
+            name=m.name,
+            source=m.source,
+            sha256=m.sha256,
+            licence=m.licence,
+            start=int(s),
+            num_frames=int(n),
+            source_fps=float(m.source_fps),
+            retarget_error=float(m.retarget_error),
+        )
+        for m, s, n in zip(motions, starts, lengths, strict=True)
+    )
+    return MotionLibrary(
+        character=spec.name,
+        fps=float(spec.control_hz),
+        joint_names=spec.joint_names(),
+        end_effectors=tuple(spec.end_effectors),
+        clips=clips,
+        frames=flat["frames"],
+        z=z,
+        metadata={
+            "frame_layout": frame_layout(spec.num_joints, len(spec.end_effectors)),
+            "vae": vae_info,
+            "keypoints": dict(spec.keypoints),
+            "velocities": "forward finite differences at fps; last frame repeats the previous",
+        },
+        **{k: v for k, v in flat.items() if k != "frames"},
+    )
+
+
 def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
-    keep = ("method", "floor_lift_max", "foot_sliding", "foot_sliding_source", "scale")
+    keep = (
+        "method", "floor_lift_max", "foot_sliding", "foot_sliding_source", "scale",
+        "npz_layout", "penetration_before_lift_m", "lower_foot_hover_max", "fk_check_error_m",
+    )  # fmt: skip
     return {k: stats[k] for k in keep if k in stats}

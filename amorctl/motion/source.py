@@ -203,20 +203,44 @@ def keypoint_positions(motion: SourceMotion) -> dict[str, np.ndarray]:
     return out
 
 
+#: Largest magnitude any imported value may have (metres, radians, degrees, seconds): beyond it the
+#: number is corrupt, and float32 frames or velocities computed from it would overflow.
+MAX_ABS_VALUE = 1.0e6
+#: Longest clip accepted, in seconds (resampling allocates duration * control rate frames).
+MAX_CLIP_SECONDS = 3600.0
+
+
 def check_finite(path: str, what: str, values: np.ndarray, axis_frames: int = 0) -> None:
-    """Raise AmorError naming the file and the first frame holding NaN or inf."""
+    """Raise AmorError naming the file and the first frame holding NaN, inf or a value beyond
+    :data:`MAX_ABS_VALUE`."""
     values = np.asarray(values, dtype=np.float64)
     bad = ~np.isfinite(values)
     if bad.any():
         frame = int(np.argwhere(bad)[0][axis_frames])
         raise AmorError(f"{path}: non-finite value (NaN or inf) in {what} at frame {frame}")
+    huge = np.abs(values) > MAX_ABS_VALUE
+    if huge.any():
+        index = tuple(np.argwhere(huge)[0])
+        raise AmorError(
+            f"{path}: value {values[index]:.4g} in {what} at frame {index[axis_frames]} is implausibly "
+            f"large (|x| > {MAX_ABS_VALUE:g})"
+        )
 
 
 def check_times(path: str, times: np.ndarray) -> None:
-    """Frame times must be finite and strictly increasing, with at least one frame."""
+    """Frame times must be finite and strictly increasing, with at least two frames, spanning at
+    most :data:`MAX_CLIP_SECONDS`."""
     if times.size == 0:
         raise AmorError(f"{path}: the clip has zero frames")
-    check_finite(path, "frame times", times)
+    if times.size == 1:
+        raise AmorError(f"{path}: the clip has only one frame; a motion needs at least 2")
+    if not np.isfinite(times).all():
+        check_finite(path, "frame times", times)
+    if float(times[-1] - times[0]) > MAX_CLIP_SECONDS:
+        raise AmorError(
+            f"{path}: the clip lasts {float(times[-1] - times[0]):.4g} s, more than {MAX_CLIP_SECONDS:g} s "
+            "(a frame time or frame rate that is far off?)"
+        )
     steps = np.diff(times)
     if steps.size and (steps <= 0).any():
         frame = int(np.argmax(steps <= 0)) + 1

@@ -65,7 +65,6 @@ def write_rollout_mcap(
     """
     import foxglove
     from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
-    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3
 
     names = rollout.objective_names
     ns = (np.round(rollout.times * 1e9)).astype(np.int64) + 1  # log times > 0
@@ -112,26 +111,7 @@ def write_rollout_mcap(
                 )
                 if not character:
                     continue
-                stamp = Timestamp(sec=int(lt // 1_000_000_000), nsec=int(lt % 1_000_000_000))
-                transforms = []
-                for prefix, pos, quat in (
-                    ("", rollout.body_pos[k], rollout.body_quat[k]),
-                    (REF_PREFIX, rollout.ref_body_pos[k], rollout.ref_body_quat[k]),
-                ):
-                    for b, body in enumerate(rollout.body_names):
-                        p, q = pos[b], quat[b]
-                        transforms.append(
-                            FrameTransform(
-                                timestamp=stamp,
-                                parent_frame_id=WORLD_FRAME,
-                                child_frame_id=prefix + body,
-                                translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                                rotation=Quaternion(
-                                    x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])
-                                ),
-                            )
-                        )
-                tf.log(FrameTransforms(transforms=transforms), log_time=lt)
+                tf.log(_frame_transforms(rollout, k, lt), log_time=lt)
                 joints.log(
                     {"name": jn, "position": rollout.joint_pos[k].tolist(),
                      "velocity": rollout.joint_vel[k].tolist()},
@@ -140,6 +120,30 @@ def write_rollout_mcap(
                 ref_joints.log(
                     {"name": jn, "position": rollout.ref_joint_pos[k].tolist(), "velocity": []}, log_time=lt
                 )
+
+
+def _frame_transforms(rollout: TuneRollout, k: int, log_time: int) -> Any:
+    """foxglove.FrameTransforms of step ``k``: world -> each body, then world -> ``ref/<body>``."""
+    from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3
+
+    stamp = Timestamp(sec=int(log_time // 1_000_000_000), nsec=int(log_time % 1_000_000_000))
+    transforms = []
+    for prefix, pos, quat in (
+        ("", rollout.body_pos[k], rollout.body_quat[k]),
+        (REF_PREFIX, rollout.ref_body_pos[k], rollout.ref_body_quat[k]),
+    ):
+        for b, body in enumerate(rollout.body_names):
+            p, q = pos[b], quat[b]
+            transforms.append(
+                FrameTransform(
+                    timestamp=stamp,
+                    parent_frame_id=WORLD_FRAME,
+                    child_frame_id=prefix + body,
+                    translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                    rotation=Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])),
+                )
+            )
+    return FrameTransforms(transforms=transforms)
 
 
 def _scene_update(rollout: TuneRollout) -> Any:

@@ -40,7 +40,7 @@ def pareto_figure(sweep: Any, paths: list[Path]) -> None:
     equal-weights (1/m) policy marked with a cross. With two objectives it is one panel.
 
     Args:
-        sweep: an :class:`amorctl.analysis.evaluation.ParetoSweep`.
+        sweep: an :class:`amorctl.analysis.sweeps.ParetoSweep`.
         paths: output files; the format follows the suffix.
     """
     plt = _pyplot()
@@ -100,7 +100,7 @@ def sweep_figure(sweep: Any, path: Path) -> None:
     Violins with the individual episodes jittered on top and the Spearman correlation in the title.
 
     Args:
-        sweep: an :class:`amorctl.analysis.evaluation.WeightSweep`.
+        sweep: an :class:`amorctl.analysis.sweeps.WeightSweep`.
         path: output file (PNG or SVG by suffix).
     """
     plt = _pyplot()

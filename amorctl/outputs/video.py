@@ -9,7 +9,7 @@ MuJoCo picks its OpenGL platform once per process, when it is imported (``MUJOCO
 frames are rendered in a short-lived child process (``python -m amorctl.outputs.video``) that tries
 ``MUJOCO_GL=egl`` then ``osmesa`` (or only the one the user set). When neither works it raises one
 :class:`AmorError` saying what to install. Shadows are off: software rendering is ~15x faster
-without them (``../shared/RECIPES.md``).
+without them.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -58,24 +57,6 @@ def gl_candidates() -> list[str]:
     """The MUJOCO_GL values to try: the user's, else ``egl`` then ``osmesa``."""
     user = os.environ.get("MUJOCO_GL", "").strip().lower()
     return [user] if user else ["egl", "osmesa"]
-
-
-def reference_qpos(env: Any, frame_index: np.ndarray) -> np.ndarray:
-    """The reference poses of library frames as simulator qpos [T, nq] of a tracking env.
-
-    Args:
-        env: a :class:`~amorctl.envs.tracking_env.TrackingEnv` (its ``sim`` and ``library``).
-        frame_index: [T] library frame indices (``Rollout.frame_index[:, env]``).
-    """
-    sim, lib = env.sim, env.library
-    f = np.asarray(frame_index, dtype=np.int64)
-    q = np.tile(sim.template[sim.s_qpos], (len(f), 1))
-    r = sim.root_qpos
-    q[:, r : r + 3] = lib.root_pos[f]
-    quat = lib.root_quat[f]
-    q[:, r + 3 : r + 7] = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-    q[:, sim.joint_qpos] = lib.joint_pos[f]
-    return q
 
 
 def render_video(
@@ -146,34 +127,41 @@ def render_video(
         "ghost_alpha": float(ghost_alpha),
         "ghost_offset": [float(v) for v in ghost_offset],
     }
-    tried: list[str] = []
-    errors: list[str] = []
     with tempfile.TemporaryDirectory(prefix="amorctl-render-") as tmp:
         job = Path(tmp) / "job.npz"
         np.savez(job, options=np.array(json.dumps(options)), **arrays)
         partial = Path(tmp) / "video.mp4"
-        for backend in gl_candidates():
-            tried.append(backend)
-            env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
-            try:
-                proc = subprocess.run(
-                    [sys.executable, "-m", "amorctl.outputs.video", str(job), str(partial)],
-                    env=env, capture_output=True, text=True, timeout=timeout_s, check=False,
-                )  # fmt: skip
-            except subprocess.TimeoutExpired:
-                raise AmorError(f"rendering {out} took longer than {timeout_s:.0f} s") from None
-            if proc.returncode == 0:
-                import shutil
+        backend = _render_in_child(job, partial, out, timeout_s)
+        import shutil
 
-                from amorctl.core.files import atomic_path
+        from amorctl.core.files import atomic_path
 
-                with atomic_path(out) as final:
-                    shutil.copyfile(partial, final)
-                return VideoInfo(out, q.shape[0], width, height, float(fps), backend)
-            last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-            if proc.returncode != _GL_FAILED:
-                raise AmorError(f"rendering {out} failed (MUJOCO_GL={backend}): {last}")
-            errors.append(f"{backend}: {last}")
+        with atomic_path(out) as final:
+            shutil.copyfile(partial, final)
+    return VideoInfo(out, q.shape[0], width, height, float(fps), backend)
+
+
+def _render_in_child(job: Path, partial: Path, out: Path, timeout_s: float) -> str:
+    """Render ``job`` into ``partial`` in a child process, trying each GL backend; returns the one
+    that worked. AmorError when none works (with what to install) or the rendering fails."""
+    tried: list[str] = []
+    errors: list[str] = []
+    for backend in gl_candidates():
+        tried.append(backend)
+        env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-m", "amorctl.outputs.video", str(job), str(partial)],
+                env=env, capture_output=True, text=True, timeout=timeout_s, check=False,
+            )  # fmt: skip
+        except subprocess.TimeoutExpired:
+            raise AmorError(f"rendering {out} took longer than {timeout_s:.0f} s") from None
+        if proc.returncode == 0:
+            return backend
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        if proc.returncode != _GL_FAILED:
+            raise AmorError(f"rendering {out} failed (MUJOCO_GL={backend}): {last}")
+        errors.append(f"{backend}: {last}")
     raise AmorError(GL_INSTALL_HINT.format(tried="/".join(tried)) + f" ({'; '.join(errors)})")
 
 

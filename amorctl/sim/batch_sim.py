@@ -27,6 +27,8 @@ import numpy as np
 from amorctl.core.errors import AmorError
 from amorctl.core.geometry import quat_conj, quat_rotate
 from amorctl.core.specs import CharacterSpec
+from amorctl.sim.model import load_model
+from amorctl.sim.prepare import sensor_addresses
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 CTRL_SPEC = mujoco.mjtState.mjSTATE_CTRL
@@ -36,44 +38,14 @@ MAX_QVEL = 1.0e3
 
 
 def build_model(character: CharacterSpec) -> mujoco.MjModel:
-    """Compile the character's MJCF with the sensors the tracking env reads.
-
-    Sensors, in order: per end effector ``framepos`` [3], ``framequat`` [4], ``framelinvel`` [3]
-    (world frame, body frame origin); then for PD characters one ``actuatorfrc`` per actuated
-    joint, in the character's joint order. The timestep is ``1 / physics_hz``.
+    """The character's model, compiled by :func:`amorctl.sim.model.load_model` with the sensors the
+    tracking env reads (:func:`amorctl.sim.prepare.add_tracking_sensors`; found by name with
+    :func:`~amorctl.sim.prepare.sensor_addresses`). The timestep is ``1 / physics_hz``.
 
     Raises:
         AmorError: the file is missing, a named body or actuator does not exist, or MuJoCo rejects it.
     """
-    path = character.mjcf_path
-    if not path.is_file():
-        raise AmorError(f"{path}: character {character.name!r} model file not found")
-    try:
-        spec = mujoco.MjSpec.from_file(str(path))
-    except ValueError as exc:
-        raise AmorError(f"{path}: MuJoCo could not parse it: {exc}") from None
-    for body in character.end_effectors:
-        for kind in (
-            mujoco.mjtSensor.mjSENS_FRAMEPOS,
-            mujoco.mjtSensor.mjSENS_FRAMEQUAT,
-            mujoco.mjtSensor.mjSENS_FRAMELINVEL,
-        ):
-            s = spec.add_sensor()
-            s.type = kind
-            s.objtype = mujoco.mjtObj.mjOBJ_XBODY
-            s.objname = body
-    if character.actuator.kind == "pd":
-        for joint in character.joint_names():
-            s = spec.add_sensor()
-            s.type = mujoco.mjtSensor.mjSENS_ACTUATORFRC
-            s.objtype = mujoco.mjtObj.mjOBJ_ACTUATOR
-            s.objname = joint
-    try:
-        model = spec.compile()
-    except ValueError as exc:
-        raise AmorError(f"{path}: character {character.name!r}: MuJoCo could not compile it: {exc}") from None
-    model.opt.timestep = 1.0 / character.physics_hz
-    return model
+    return load_model(character, tracking_sensors=True)
 
 
 def _id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str, what: str, character: str) -> int:
@@ -81,6 +53,14 @@ def _id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str, what: str, charact
     if i < 0:
         raise AmorError(f"character {character!r}: {what} {name!r} not found in its MJCF")
     return int(i)
+
+
+def _joint_actuator(model: mujoco.MjModel, joint: int) -> int:
+    """The actuator driving ``joint``, preferring one named like it (as prepare_spec chose)."""
+    drives = (model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT) & (model.actuator_trnid[:, 0] == joint)
+    hits = [int(a) for a in np.flatnonzero(drives)]
+    same = [a for a in hits if model.actuator(a).name == model.joint(joint).name]
+    return (same or hits)[0]
 
 
 def _check_array(arrays: dict[str, np.ndarray], name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -139,9 +119,8 @@ class BatchSim:
         jids = [_id(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint", name) for j in character.joint_names()]
         self.joint_qpos = m.jnt_qposadr[jids].astype(np.int64)
         self.joint_dof = m.jnt_dofadr[jids].astype(np.int64)
-        self.actuators = np.array(
-            [_id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, j, "actuator", name) for j in character.joint_names()]
-        )
+        self.actuators = np.array([_joint_actuator(m, int(j)) for j in jids])
+        self.sensors = sensor_addresses(m, character)
         self.gear = m.actuator_gear[self.actuators, 0].copy()
         self.num_joints = len(jids)
         self.num_ee = len(character.end_effectors)
@@ -308,7 +287,6 @@ class BatchSim:
 
     def step(self, pd_target: np.ndarray) -> StepOutput:
         """Advance every env by one control step toward PD targets [N, J] (rad)."""
-        n, jn = self.num_envs, self.num_joints
         time0 = self.state[:, 0].copy()
         if not self.servo:
             self.ctrl[:, :, self.actuators] = pd_target[:, None, :]
@@ -320,8 +298,7 @@ class BatchSim:
             )
             self.warmstart = (qv_last - qv_prev) / self.dt
             self.state[:] = out[:, -1]
-            nsens = self.num_ee * 10
-            self.torque[:] = self._out_sens[:, :, nsens : nsens + jn] * self.gear
+            self.torque[:] = self._out_sens[:, :, self.sensors.torque] * self.gear
         else:
             for sub in range(self.substeps):
                 target = self.delay.push(pd_target)  # the command of `latency_steps` ago
@@ -335,7 +312,7 @@ class BatchSim:
                 self._rollout(1)
                 self.state[:] = self._out_state[:, 0]
                 self.warmstart = (self.qvel - qv_prev) / self.dt
-        sens = self._out_sens[:, -1, : self.num_ee * 10].reshape(n, self.num_ee, 10)
+        sens = self._out_sens[:, -1][:, self.sensors.ee]  # [N, E, 10]
         expected = time0 + self.substeps * self.dt
         finite = np.isfinite(self.state).all(axis=1) & np.isfinite(sens).all(axis=(1, 2))
         diverged = ~finite | (np.abs(self.qvel) > MAX_QVEL).any(axis=1)

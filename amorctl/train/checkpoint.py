@@ -6,6 +6,10 @@ objectives, the trainer's and env's JSON state) and the size and SHA-256 of the 
 Both are written atomically, the JSON last, so a checkpoint exists only once both are complete;
 loading checks size and hash, so a truncated or altered file is reported, not half-loaded.
 Loading reads tensors with ``safetensors`` and metadata with ``json``: no code is executed.
+Before anything is used, :func:`check_record` checks the metadata's types and meaning (the
+iteration is the file name's, a non-negative integer; the tensor file is a plain name inside the
+checkpoint directory; sizes are positive integers; RNG states are valid numpy states; clip indices
+are integers) and :func:`check_against_config` checks it against the run's config.
 """
 
 from __future__ import annotations
@@ -18,15 +22,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.random import MT19937, PCG64, PCG64DXSM, SFC64, Philox
 from safetensors import SafetensorError
 from safetensors.numpy import load_file, save_file
 
+from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_path, atomic_write_text
 
 FORMAT = "amorctl-checkpoint/1"
 _NAME = re.compile(r"^iter_(\d+)\.json$")
+_TENSOR_NAME = re.compile(r"^[A-Za-z0-9_.-]+\.safetensors$")
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+_BIT_GENERATORS = {g.__name__: g for g in (PCG64, PCG64DXSM, Philox, SFC64, MT19937)}
+#: Keys of env / trainer state that hold clip indices: lists of ints (or None).
+_INDEX_LISTS = ("valid_clips", "env_clips", "clip_index", "clips")
+#: Keys of env / trainer state that hold counts: non-negative ints.
+_COUNTS = ("iteration", "env_steps", "episodes", "diverged_total", "obs_dim", "action_dim", "recent_ptr")
 
 
 @dataclass
@@ -88,12 +101,104 @@ def list_checkpoints(directory: Path) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_state(path: Path, where: str, value: Any) -> None:
+    """Walk a JSON state (trainer or env): RNG states, clip indices and counts must be well typed."""
+    if isinstance(value, dict):
+        if "bit_generator" in value:
+            generator = _BIT_GENERATORS.get(value.get("bit_generator"))  # type: ignore[arg-type]
+            if generator is None:
+                raise AmorError(f"{path}: {where}: unknown random generator {value.get('bit_generator')!r}")
+            try:
+                generator().state = value
+            except (TypeError, ValueError, KeyError, OverflowError) as exc:
+                raise AmorError(f"{path}: {where}: not a valid random-generator state ({exc})") from None
+            return
+        for key, item in value.items():
+            sub = f"{where}.{key}"
+            if key in _COUNTS and not (_is_int(item) and item >= 0):
+                raise AmorError(f"{path}: {sub} = {item!r} must be an integer >= 0")
+            if (
+                key in _INDEX_LISTS
+                and item is not None
+                and not (isinstance(item, list) and all(_is_int(i) and i >= 0 for i in item))
+            ):
+                raise AmorError(f"{path}: {sub} must be a list of clip indices (integers >= 0)")
+            _check_state(path, sub, item)
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            _check_state(path, f"{where}[{i}]", item)
+    elif isinstance(value, float) and not np.isfinite(value):
+        raise AmorError(f"{path}: {where} = {value!r} is not finite")
+
+
+def check_record(json_path: Path, record: Any) -> int:
+    """Check a checkpoint's JSON record (types and meaning) before any of it is used.
+
+    Returns:
+        the iteration.
+
+    Raises:
+        AmorError: naming the file and the key: another format, an iteration that is not an
+            integer >= 0 or not the file name's, a tensor file name with a directory part (``/abs``,
+            ``..``), bad size/hash fields, run metadata of the wrong type, an invalid RNG state, or
+            clip indices that are not integers.
+    """
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        raise AmorError(f"{json_path}: not an amorctl checkpoint (format {FORMAT!r} expected)")
+    iteration = record.get("iteration")
+    if not _is_int(iteration) or iteration < 0:
+        raise AmorError(f"{json_path}: 'iteration' = {iteration!r} must be an integer >= 0")
+    named = _NAME.match(json_path.name)
+    if named and int(named.group(1)) != iteration:
+        raise AmorError(f"{json_path}: 'iteration' = {iteration} disagrees with the file name")
+    info = record.get("tensors")
+    if not isinstance(info, dict):
+        raise AmorError(f"{json_path}: 'tensors' must be a table with file, bytes and sha256")
+    name = info.get("file")
+    if not isinstance(name, str) or not _TENSOR_NAME.match(name) or name.startswith("."):
+        raise AmorError(
+            f"{json_path}: tensors.file = {name!r} must be a plain *.safetensors name in the checkpoint "
+            "directory (no directory part, no '..')"
+        )
+    if not _is_int(info.get("bytes")) or info["bytes"] <= 0:
+        raise AmorError(f"{json_path}: tensors.bytes = {info.get('bytes')!r} must be a positive integer")
+    if not isinstance(info.get("sha256"), str) or not _SHA256.match(info["sha256"]):
+        raise AmorError(f"{json_path}: tensors.sha256 must be 64 lowercase hex digits")
+    for key in ("backend", "env_kind"):
+        if not isinstance(record.get(key), str):
+            raise AmorError(f"{json_path}: {key!r} = {record.get(key)!r} must be a string")
+    for key in ("character", "gym_id", "objective_set"):
+        if record.get(key) is not None and not isinstance(record[key], str):
+            raise AmorError(f"{json_path}: {key!r} = {record[key]!r} must be a string or null")
+    objectives = record.get("objectives")
+    if not isinstance(objectives, list) or not objectives or not all(isinstance(o, str) for o in objectives):
+        raise AmorError(f"{json_path}: 'objectives' must be a non-empty list of names")
+    for key in ("obs_dim", "action_dim"):
+        if not _is_int(record.get(key)) or record[key] <= 0:
+            raise AmorError(f"{json_path}: {key!r} = {record.get(key)!r} must be a positive integer")
+    for key in ("trainer", "env"):
+        if record.get(key) is not None and not isinstance(record[key], dict):
+            raise AmorError(f"{json_path}: {key!r} must be a table (the {key}'s state)")
+        _check_state(json_path, key, record.get(key))
+    trainer_iteration = (record.get("trainer") or {}).get("iteration", iteration)
+    if trainer_iteration != iteration:
+        raise AmorError(
+            f"{json_path}: trainer.iteration = {trainer_iteration!r} disagrees with 'iteration' = {iteration}"
+        )
+    return iteration
+
+
 def load_checkpoint(json_path: Path) -> Checkpoint:
     """Read and verify a checkpoint.
 
     Raises:
-        AmorError: the JSON or tensor file is missing, not JSON, of another format, truncated or
-            altered (size or hash mismatch), or not a valid safetensors file.
+        AmorError: the JSON or tensor file is missing, not JSON, of another format, fails
+            :func:`check_record`, is truncated or altered (size or hash mismatch), or is not a
+            valid safetensors file.
     """
     if not json_path.is_file():
         raise AmorError(f"{json_path}: checkpoint not found")
@@ -101,18 +206,19 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
         record = json.loads(json_path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise AmorError(f"{json_path}: checkpoint metadata is not valid JSON (truncated?): {exc}") from None
-    if not isinstance(record, dict) or record.get("format") != FORMAT:
-        raise AmorError(f"{json_path}: not an amorctl checkpoint (format {FORMAT!r} expected)")
-    info = record.get("tensors", {})
-    tensors_path = json_path.parent / str(info.get("file", ""))
+    except RecursionError:
+        raise AmorError(f"{json_path}: checkpoint metadata is nested too deeply") from None
+    iteration = check_record(json_path, record)
+    info = record["tensors"]
+    tensors_path = json_path.parent / info["file"]
     if not tensors_path.is_file():
         raise AmorError(f"{tensors_path}: checkpoint tensors file missing")
     size = tensors_path.stat().st_size
-    if size != info.get("bytes"):
+    if size != info["bytes"]:
         raise AmorError(
-            f"{tensors_path}: checkpoint is truncated or altered ({size} bytes, {info.get('bytes')} expected)"
+            f"{tensors_path}: checkpoint is truncated or altered ({size} bytes, {info['bytes']} expected)"
         )
-    if _sha256(tensors_path) != info.get("sha256"):
+    if _sha256(tensors_path) != info["sha256"]:
         raise AmorError(f"{tensors_path}: checkpoint content does not match its recorded SHA-256")
     try:
         arrays = load_file(str(tensors_path))
@@ -125,7 +231,36 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
     if record.get("env") is not None:
         env = Snapshot({k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, record["env"])
     meta = {k: v for k, v in record.items() if k not in ("trainer", "env", "tensors", "format")}
-    return Checkpoint(json_path, int(record["iteration"]), meta, trainer, env)
+    return Checkpoint(json_path, iteration, meta, trainer, env)
+
+
+def check_against_config(ckpt: Checkpoint, config: TrainConfig, config_path: Path | str) -> None:
+    """Raise AmorError if a checkpoint was made for another backend, env kind, character, gym id
+    or objective set than the run's config (``config_path``, named in the message) says."""
+    e = config.env
+    expected: dict[str, Any] = {
+        "backend": config.run.backend,
+        "env_kind": e.kind,
+        "character": e.character if e.kind == "tracking" else None,
+        "gym_id": e.gym_id if e.kind == "gym" else None,
+    }
+    if "objective_set" in ckpt.meta:  # checkpoints written before it was recorded lack it
+        expected["objective_set"] = e.objective_set if e.kind == "tracking" else None
+    for key, want in expected.items():
+        if ckpt.meta.get(key) != want:
+            raise AmorError(
+                f"{ckpt.path}: checkpoint was made for {key.replace('_', ' ')} {ckpt.meta.get(key)!r}, "
+                f"the run's config ({config_path}) has {want!r}"
+            )
+
+
+def check_policy_sizes(ckpt: Checkpoint, obs_dim: int, action_dim: int, objectives: Any) -> None:
+    """Raise AmorError if the networks stored in a checkpoint disagree with its metadata."""
+    for key, got in (("obs_dim", obs_dim), ("action_dim", action_dim), ("objectives", list(objectives))):
+        if ckpt.meta.get(key) != got:
+            raise AmorError(
+                f"{ckpt.path}: metadata says {key} = {ckpt.meta.get(key)!r}, its networks have {got!r}"
+            )
 
 
 def prune_checkpoints(directory: Path, keep: int) -> None:

@@ -4,12 +4,25 @@ Reads like rsl_rl's runner: make env → make trainer → (restore) → iterate 
 The run directory's layout is :mod:`amorctl.train.rundir`'s. ``--resume`` reloads the newest
 checkpoint (trainer and, when the env can snapshot itself, env state), drops metric rows after
 it, and continues; the next iteration then computes exactly what an uninterrupted run would have.
+
+A new run that fails before its first checkpoint (bad input found late, divergence, a crash)
+removes what it wrote, so the same ``--out`` can be used again. Simulator warnings (MuJoCo's C
+warning callback) are counted instead of printed; a whole batch that diverges ends the run with
+one error line that quotes the first warning.
+
+Under ``torchrun`` (:mod:`amorctl.train.distributed`) every rank runs this loop on its share of
+the envs; rank 0 alone writes the run directory, gathers the ranks' states into each checkpoint
+and reports; a stop (signal, ``stop_after``) on any rank stops all ranks at the same iteration.
 """
 
 from __future__ import annotations
 
+import contextlib
+import csv
+import shutil
 import time
-from collections.abc import Callable
+from collections import Counter
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,9 +34,16 @@ from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
-from amorctl.train.checkpoint import Checkpoint, prune_checkpoints, save_checkpoint
-from amorctl.train.metrics import MetricsLog
-from amorctl.train.rundir import RunDir, check_compatible, run_meta
+from amorctl.train import distributed
+from amorctl.train.checkpoint import (
+    Checkpoint,
+    check_against_config,
+    checkpoint_paths,
+    prune_checkpoints,
+    save_checkpoint,
+)
+from amorctl.train.metrics import METRICS_FILE, TB_DIR, MetricsLog
+from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir, check_compatible, run_meta
 from amorctl.train.signals import stop_on_signals
 
 
@@ -37,8 +57,112 @@ class RunResult:
     interrupted: bool
     checkpoint: Path | None
     last_metrics: dict[str, float] = field(default_factory=dict)
+    signal: str = ""  # "SIGINT" / "SIGTERM" when a signal stopped the run, else ""
 
 
+# --- simulator warnings ---------------------------------------------------------------------------
+class SimWarnings:
+    """MuJoCo warnings raised while training, counted by message instead of printed."""
+
+    def __init__(self) -> None:
+        self.counts: Counter[str] = Counter()
+        self.first = ""
+
+    def __call__(self, message: str) -> None:  # called from MuJoCo's threads (the GIL is held)
+        text = " ".join(str(message).split())
+        if not self.first:
+            self.first = text
+        self.counts[text.split(" Time =")[0]] += 1
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def summary(self) -> str:
+        if not self.total:
+            return ""
+        return f"; the simulator warned {self.total} times, first: {self.first!r}"
+
+
+@contextlib.contextmanager
+def captured_sim_warnings() -> Iterator[SimWarnings]:
+    """Route MuJoCo's C warnings (``mju_warning``) into a :class:`SimWarnings` for the block."""
+    sink = SimWarnings()
+    try:
+        import mujoco
+    except ImportError:  # a backend without MuJoCo
+        yield sink
+        return
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(sink)
+    try:
+        yield sink
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+# --- a new run's files ----------------------------------------------------------------------------
+def _remove_failed_run(out: Path, created: bool) -> None:
+    """Undo a new run that never saved a checkpoint: the directory if this run created it, else
+    only the files a run writes (the directory held other things before)."""
+    if created:
+        shutil.rmtree(out, ignore_errors=True)
+        return
+    for name in (CONFIG_FILE, METRICS_FILE):
+        (out / name).unlink(missing_ok=True)
+    for name in (TB_DIR, CHECKPOINT_DIR):
+        shutil.rmtree(out / name, ignore_errors=True)
+
+
+def _restore(
+    ckpt: Checkpoint,
+    config: TrainConfig,
+    config_path: Path,
+    env: VectorEnv,
+    trainer: Trainer,
+    world: distributed.World | None = None,
+    on_note: Callable[[str], None] | None = None,
+) -> int:
+    """Load a checkpoint into the trainer (and env); returns its iteration.
+
+    Raises:
+        AmorError: naming the checkpoint, when it was made for another env or its state does not
+            fit this run (wrong shapes, types or indices).
+    """
+    check_compatible(ckpt, config, env)
+    check_against_config(ckpt, config, config_path)
+    world = world or distributed.World()
+    saved_by = distributed.snapshot_world_size(ckpt.trainer)
+    same_world = saved_by == world.size
+    try:
+        # this rank's part; with another world size every rank takes rank 0's networks and RNG
+        trainer.load_state_dict(distributed.rank_snapshot(ckpt.trainer, world.rank if same_world else 0))
+        if not same_world and on_note is not None:
+            on_note(
+                f"{ckpt.path.name} was saved by {saved_by} process(es), this run has {world.size}: "
+                "networks, optimizer and normalizer continue, the envs restart from fresh episodes"
+            )
+        if same_world and ckpt.env is not None and isinstance(env, SnapshotEnv):
+            env.set_state(distributed.rank_snapshot(ckpt.env, world.rank))
+        else:  # the env cannot snapshot: continue from fresh episodes, deterministically seeded
+            trainer.reset_env(config.run.seed + ckpt.iteration)
+    except AmorError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, RuntimeError, OverflowError) as exc:
+        raise AmorError(
+            f"{ckpt.path}: checkpoint state does not fit this run ({type(exc).__name__}: {exc})"
+        ) from None
+    return ckpt.iteration
+
+
+def _metrics_log(out: Path, config: TrainConfig, resume_from: int | None) -> MetricsLog:
+    try:
+        return MetricsLog(out, config.run.tensorboard, resume_from)
+    except (ValueError, KeyError, TypeError, csv.Error, UnicodeDecodeError) as exc:
+        raise AmorError(f"{out / METRICS_FILE}: cannot continue the metrics file: {exc}") from None
+
+
+# --- the loop -------------------------------------------------------------------------------------
 def train_run(
     config: TrainConfig,
     out: Path,
@@ -48,6 +172,7 @@ def train_run(
     on_iteration: Callable[[dict[str, float], int, float], None] | None = None,
     stop_after: int | None = None,
     stop_when: Callable[[dict[str, float]], bool] | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> RunResult:
     """Train into the run directory ``out`` (new, or resumed from its newest checkpoint).
 
@@ -61,70 +186,117 @@ def train_run(
             used by tests to simulate an interruption.
         stop_when: stop the same way once it returns True for an iteration's metrics (e.g. a
             wall-time budget in a benchmark).
+        on_note: called with a one-line notice (e.g. a resume with another number of processes).
+
+    Under torchrun (an initialized process group) the callbacks run on rank 0 only.
 
     Raises:
-        AmorError: ``out`` already holds a run (without ``resume``), has none to resume, or its
-            checkpoint is damaged or made for another env; nothing in ``out`` is changed then.
+        AmorError: ``out`` already holds a run (without ``resume``), has none to resume, its
+            checkpoint is damaged or made for another env (nothing in ``out`` is changed then), or
+            training diverged. A new run that fails before its first checkpoint leaves nothing.
     """
     run = RunDir(out)
-    ckpt_dir = run.checkpoint_dir
+    world = distributed.current()
+    if not world.is_main:  # other ranks stay quiet
+        on_start = on_iteration = on_note = None
     ckpt: Checkpoint | None = None
-    if resume:
-        run.config  # noqa: B018 (a run to resume must have a valid config)
-        ckpt = run.checkpoint()
-    elif run.exists():
-        raise AmorError(f"{out} already holds a run; pass --resume to continue it or choose another --out")
+    with world.agreeing():  # every rank sees the files rank 0 checks (a shared filesystem on resume)
+        if resume:
+            run.config  # noqa: B018 (a run to resume must have a valid config)
+            ckpt = run.checkpoint()
+        elif world.is_main and run.exists():
+            raise AmorError(
+                f"{out} already holds a run; pass --resume to continue it or choose another --out"
+            )
+        if world.is_main and out.exists() and not out.is_dir():
+            raise AmorError(f"{out}: --out must be a directory, not a file")
+    created = not out.exists()
+    saved: list[Path] = []  # checkpoints this call wrote
+    try:
+        with captured_sim_warnings() as warnings:
+            hooks = (on_start, on_iteration, stop_after, stop_when)
+            return _train(config, run, ckpt, warnings, saved, *hooks, world, on_note)
+    except BaseException:
+        if world.is_main and ckpt is None and not saved:
+            _remove_failed_run(out, created)
+        raise
 
+
+def _train(
+    config: TrainConfig,
+    run: RunDir,
+    ckpt: Checkpoint | None,
+    warnings: SimWarnings,
+    saved: list[Path],
+    on_start: Callable[[VectorEnv, int, int], None] | None,
+    on_iteration: Callable[[dict[str, float], int, float], None] | None,
+    stop_after: int | None,
+    stop_when: Callable[[dict[str, float]], bool] | None,
+    world: distributed.World,
+    on_note: Callable[[str], None] | None,
+) -> RunResult:
+    out = run.path
     backend = run.backend(config)
-    env = make_env(config, backend)
-    trainer: Trainer = backend.make_trainer(env, config)
+    local = distributed.local_config(config, world)  # this rank's envs and seed
+    with world.agreeing():
+        env = make_env(local, backend)
+    trainer: Trainer = backend.make_trainer(env, local)
+    if getattr(trainer, "world_size", 1) != world.size:
+        raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
     start = 0
-    if ckpt is not None:
-        check_compatible(ckpt, config, env)
-        trainer.load_state_dict(ckpt.trainer)
-        if ckpt.env is not None and isinstance(env, SnapshotEnv):
-            env.set_state(ckpt.env)
-        else:  # the env cannot snapshot: continue from fresh episodes, deterministically seeded
-            trainer.reset_env(config.run.seed + ckpt.iteration)
-        start = ckpt.iteration
-    else:
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(run.config_path, to_toml(config))
+    with world.agreeing():
+        if ckpt is not None:
+            start = _restore(ckpt, local, run.config_path, env, trainer, world, on_note)
+        elif world.is_main:
+            out.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(run.config_path, to_toml(config))
 
     total = config.run.iterations
     meta = run_meta(config, env)
     snapshot = isinstance(env, SnapshotEnv)
+    batch = config.env.num_envs * config.ppo.num_steps
 
     def checkpoint(iteration: int) -> Path:
         env_state = env.get_state() if snapshot else None  # type: ignore[union-attr]
-        path = save_checkpoint(ckpt_dir, iteration, meta, trainer.state_dict(), env_state)
-        prune_checkpoints(ckpt_dir, config.run.keep_checkpoints)
+        trainer_state = distributed.gather_snapshot(trainer.state_dict(), world)  # all ranks' parts
+        if env_state is not None:
+            env_state = distributed.gather_snapshot(env_state, world)
+        if trainer_state is None:  # not rank 0: rank 0 writes it
+            return checkpoint_paths(run.checkpoint_dir, iteration)[1]
+        path = save_checkpoint(run.checkpoint_dir, iteration, meta, trainer_state, env_state)
+        prune_checkpoints(run.checkpoint_dir, config.run.keep_checkpoints)
+        saved.append(path)
         return path
 
-    metrics_log = MetricsLog(out, config.run.tensorboard, start if resume else None)
+    metrics_log = (
+        _metrics_log(out, config, start if ckpt is not None else None)
+        if world.is_main
+        else distributed.QuietLog()
+    )
     if on_start is not None:
         on_start(env, start, total)
     last_path: Path | None = ckpt.path if ckpt is not None else None
     last: dict[str, float] = {}
     interrupted = False
+    signal_name = ""
     iteration = start
     began = time.perf_counter()
     try:
         with stop_on_signals() as stop:
             while iteration < total:
+                diverged_before = _diverged_total(env)
                 last = trainer.iteration()
                 iteration = trainer.iteration_count
                 last["wall_time_s"] = time.perf_counter() - began
                 metrics_log.write(last)
                 if on_iteration is not None:
                     on_iteration(last, total, time.perf_counter() - began)
-                if not all(np.isfinite(v) for k, v in last.items() if k.startswith("loss/")):
-                    raise AmorError(
-                        f"training diverged at iteration {iteration} (non-finite loss); "
-                        f"the last good checkpoint is {last_path}"
-                    )
+                diverged = _diverged_total(env) - diverged_before
+                if world.distributed:  # every rank decides on all ranks' counts
+                    diverged = int(world.sum(diverged)[0])
+                _check_divergence(last, iteration, warnings, diverged, batch, last_path)
                 done_here = iteration - start
-                interrupted = (
+                interrupted = world.any(  # all ranks stop at the same iteration
                     stop.requested
                     or (stop_after is not None and done_here >= stop_after)
                     or (stop_when is not None and stop_when(last))
@@ -132,10 +304,40 @@ def train_run(
                 if interrupted or iteration % config.run.checkpoint_every == 0 or iteration == total:
                     last_path = checkpoint(iteration)
                 if interrupted:
+                    signal_name = stop.signal_name
                     break
     finally:
         metrics_log.close()
         close = getattr(env, "close", None)
         if callable(close):
             close()
-    return RunResult(out, start, iteration, interrupted, last_path, last)
+    return RunResult(out, start, iteration, interrupted, last_path, last, signal_name)
+
+
+def _diverged_total(env: VectorEnv) -> int:
+    """Env steps whose simulation blew up so far (the tracking env's documented ``diverged_total``
+    step statistic; 0 for envs without a simulator)."""
+    return int(getattr(env, "diverged_total", 0) or 0)
+
+
+def _check_divergence(
+    metrics: dict[str, float],
+    iteration: int,
+    warnings: SimWarnings,
+    diverged: int,
+    batch: int,
+    last_path: Path | None,
+) -> None:
+    """End the run with one line when the whole batch diverged: a non-finite loss, or every env
+    step of the iteration blew up in the simulator."""
+    losses_bad = not all(np.isfinite(v) for k, v in metrics.items() if k.startswith("loss/"))
+    sim_bad = diverged >= batch
+    if not (losses_bad or sim_bad):
+        return
+    what = "non-finite loss" if losses_bad else f"the simulation was unstable on all {batch} env steps"
+    where = (
+        f"the last good checkpoint is {last_path}"
+        if last_path is not None
+        else "no checkpoint was saved, so the run directory was removed"
+    )
+    raise AmorError(f"training diverged at iteration {iteration} ({what}{warnings.summary()}); {where}")

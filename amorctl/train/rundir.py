@@ -24,7 +24,13 @@ from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
 from amorctl.registry import get_registry
-from amorctl.train.checkpoint import Checkpoint, list_checkpoints, load_checkpoint
+from amorctl.train.checkpoint import (
+    Checkpoint,
+    check_against_config,
+    check_policy_sizes,
+    list_checkpoints,
+    load_checkpoint,
+)
 from amorctl.train.metrics import METRICS_FILE, TB_DIR
 
 CONFIG_FILE = "config.toml"
@@ -156,13 +162,10 @@ class RunDir:
     def policy_of(self, ckpt: Checkpoint) -> Policy:
         """The policy of an already loaded checkpoint of this run."""
         config = self.config
-        for key, want in (("backend", config.run.backend), ("env_kind", config.env.kind)):
-            if ckpt.meta.get(key) != want:
-                raise AmorError(
-                    f"{ckpt.path}: checkpoint was made for {key.replace('_', ' ')} {ckpt.meta.get(key)!r}, "
-                    f"the run's config ({self.config_path}) has {want!r}"
-                )
-        return self.backend().load_policy(ckpt.trainer, config)
+        check_against_config(ckpt, config, self.config_path)
+        policy = self.backend().load_policy(ckpt.trainer, config)
+        check_policy_sizes(ckpt, policy.obs_dim, policy.action_dim, policy.objectives)
+        return policy
 
 
 def run_meta(config: TrainConfig, env: VectorEnv) -> dict[str, Any]:
@@ -174,6 +177,7 @@ def run_meta(config: TrainConfig, env: VectorEnv) -> dict[str, Any]:
         "env_kind": e.kind,
         "character": e.character if e.kind == "tracking" else None,
         "gym_id": e.gym_id if e.kind == "gym" else None,
+        "objective_set": e.objective_set if e.kind == "tracking" else None,
         "objectives": list(env.reward_space.names),
         "obs_dim": env.obs_dim,
         "action_dim": env.action_dim,

@@ -27,7 +27,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import dump_schedule
-from amorctl.tune.session import StepRecord, TuneEnv, geom_table
+from amorctl.tune.session import PinnedMotion, StepRecord, geom_table
 
 SLIDER_MAX = 1.0
 SLIDER_STEP = 0.01
@@ -43,7 +43,9 @@ class LiveSession:
         save_to: the schedule file :meth:`save_schedule` writes by default.
     """
 
-    def __init__(self, tenv: TuneEnv, weights: np.ndarray | None = None, save_to: str | Path = "") -> None:
+    def __init__(
+        self, tenv: PinnedMotion, weights: np.ndarray | None = None, save_to: str | Path = ""
+    ) -> None:
         self.tenv = tenv
         self.names = tenv.names
         self.m = len(self.names)
@@ -221,7 +223,8 @@ class LiveApp:
         self.error: BaseException | None = None
         self._build_gui()
         self._build_scene()
-        h = float(session.tenv.base.character.standing_height) * 2 if session.tenv.tracking else 1.0
+        view = session.tenv.view
+        h = float(view.character.standing_height) * 2 if view is not None else 1.0
         self.server.initial_camera.position = (2.2 * h, -2.2 * h, 1.4 * h)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.4 * h)
         self._refresh_scene()

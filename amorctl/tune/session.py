@@ -1,14 +1,14 @@
 """Run a trained policy with weights chosen after training: constant, scheduled w(t), or live.
 
 This is the paper's core promise (Sections 1 and 7.2): one policy, conditioned on w, whose
-trade-off is tuned after training without retraining. :class:`TuneEnv` is one environment of a
+trade-off is tuned after training without retraining. :class:`PinnedMotion` is one environment of a
 run, pinned to one motion, that the caller steps with any weights at every control step (through
 :class:`~amorctl.envs.wrappers.FixedWeights`); :func:`run_tune` rolls it out under a constant w or a
 :class:`~amorctl.core.schedule.Schedule` and records a :class:`TuneRollout`, which
 :func:`amorctl.outputs.mcap_log.write_rollout_mcap` logs with Foxglove schemas and
 :func:`amorctl.outputs.plots.plot_rollout` draws like the
 paper's teaser / Fig. 7 (w(t) as stacked areas above the per-objective rewards). The live page
-(``amorctl.tune.live``) drives the same :class:`TuneEnv`. Usage: docs/tune.md.
+(``amorctl.tune.live``) drives the same :class:`PinnedMotion`. Usage: docs/tune.md.
 """
 
 from __future__ import annotations
@@ -21,11 +21,13 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from amorctl.analysis.rollout import tracking_env
+from amorctl.analysis.rollout import Rollout, rollout
+from amorctl.core.contracts import TrackingView, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
 from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
 from amorctl.envs.wrappers import FixedWeights
+from amorctl.motion.resolve import resolve_name
 from amorctl.train.rundir import RunDir, check_compatible
 
 # ---------------------------------------------------------------------------- one pinned env
@@ -33,7 +35,7 @@ from amorctl.train.rundir import RunDir, check_compatible
 
 @dataclass(frozen=True)
 class StepRecord:
-    """What one control step of a :class:`TuneEnv` did (env 0; J joints, B bodies, m objectives).
+    """What one control step of a :class:`PinnedMotion` did (env 0; J joints, B bodies, m objectives).
 
     Attributes:
         t: time of the observation the action was computed from, seconds.
@@ -61,7 +63,7 @@ class StepRecord:
     ref_body_quat: np.ndarray
 
 
-class TuneEnv:
+class PinnedMotion:
     """One environment of a trained run, pinned to one motion, stepped with caller-chosen weights.
 
     The run's env (``base``) is rebuilt from its resolved config with one env and no fixed
@@ -97,13 +99,14 @@ class TuneEnv:
         self.names: tuple[str, ...] = tuple(base.reward_space.names)
         self.m = len(self.names)
         self.seed = seed
-        self.tracking = tracking_env(base) is not None
-        self.dt = float(base.dt) if self.tracking else 1.0 / TOY_CONTROL_HZ
-        self.motions: tuple[str, ...] = tuple(c.name for c in base.library.clips) if self.tracking else ()
+        self.view: TrackingView | None = tracking_view(base)
+        self.tracking = self.view is not None
+        self.dt = float(self.view.dt) if self.view is not None else 1.0 / TOY_CONTROL_HZ
+        self.motions: tuple[str, ...] = self.view.clip_names if self.view is not None else ()
         self.clip_index = 0
         self.env = FixedWeights(base, np.full(self.m, 1.0 / self.m))
-        if self.tracking:
-            model = base.sim.model
+        if self.view is not None:
+            model = self.view.model
             self.model: mujoco.MjModel | None = model
             self._data = mujoco.MjData(model)
             self.body_names: tuple[str, ...] = tuple(
@@ -122,7 +125,8 @@ class TuneEnv:
 
     def set_motion(self, motion: str | None) -> None:
         """Pin the env to ``motion`` (None: the first clip) and restart. AmorError if unknown."""
-        if not self.tracking:
+        view = self.view
+        if view is None:
             if motion is not None:
                 raise AmorError(
                     f"run {self.run_dir} trains env kind {self.config.env.kind!r}, which has no motions; "
@@ -130,24 +134,25 @@ class TuneEnv:
                 )
             self.restart()
             return
-        from amorctl.motion.resolve import resolve_clip_index
-
-        lib = self.base.library
-        k = 0 if motion is None else resolve_clip_index(lib, motion)
-        if lib.clips[k].num_frames < 2:
-            raise AmorError(f"motion {lib.clips[k].name!r} has fewer than 2 frames")
-        self.motion = lib.clips[k].name
+        names = view.clip_names
+        k = (
+            0
+            if motion is None
+            else names.index(resolve_name(motion, names, f"the {view.character.name} dataset"))
+        )
+        if view.clip_frame_counts[k] < 2:
+            raise AmorError(f"motion {names[k]!r} has fewer than 2 frames")
+        self.motion = names[k]
         self.clip_index = k
-        self.base.select_clips([k], from_start=True)
+        view.select_clips([k], from_start=True)
         self.env = FixedWeights(self.base, self.env.weights[0])
         self.restart()
 
     @property
     def motion_seconds(self) -> float:
         """Duration of the pinned clip (tracking), else of the run's episode, in seconds."""
-        if self.tracking:
-            lib = self.base.library
-            return float(lib.clip_duration(lib.clips[self.clip_index]))
+        if self.view is not None:
+            return float(self.view.clip_seconds[self.clip_index])
         return float(self.config.env.episode_seconds)
 
     def restart(self) -> None:
@@ -188,32 +193,23 @@ class TuneEnv:
 
     def poses(self) -> dict[str, np.ndarray]:
         """Joint state and world body poses of env 0 and of its reference (empty without a character)."""
-        if not self.tracking:
+        view = self.view
+        if view is None:
             e1, e3, e4 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4))
             return dict(joint_pos=e1, joint_vel=e1, ref_joint_pos=e1, body_pos=e3, body_quat=e4,
                         ref_body_pos=e3, ref_body_quat=e4)  # fmt: skip
-        sim = self.base.sim
-        f = int(self.base.ref_idx[0])
-        body_pos, body_quat = self.body_poses(sim.qpos[0])
-        ref_pos, ref_quat = self.body_poses(self.reference_qpos(f, sim.qpos[0]))
+        frame = view.reference_index()[:1]
+        body_pos, body_quat = self.body_poses(view.qpos()[0])
+        ref_pos, ref_quat = self.body_poses(view.reference_qpos(frame)[0])
         return dict(
-            joint_pos=sim.joint_pos()[0].copy(),
-            joint_vel=sim.joint_vel()[0].copy(),
-            ref_joint_pos=self.base.library.joint_pos[f].copy(),
+            joint_pos=view.joint_pos()[0],
+            joint_vel=view.joint_vel()[0],
+            ref_joint_pos=view.reference_joint_pos(frame)[0],
             body_pos=body_pos,
             body_quat=body_quat,
             ref_body_pos=ref_pos,
             ref_body_quat=ref_quat,
         )
-
-    def reference_qpos(self, frame: int, template: np.ndarray) -> np.ndarray:
-        """qpos [nq] of the reference at library ``frame`` (other entries from ``template`` [nq])."""
-        sim, lib = self.base.sim, self.base.library
-        q = np.array(template, dtype=np.float64, copy=True)
-        q[sim.root_qpos : sim.root_qpos + 3] = lib.root_pos[frame]
-        q[sim.root_qpos + 3 : sim.root_qpos + 7] = lib.root_quat[frame]
-        q[sim.joint_qpos] = lib.joint_pos[frame]
-        return q
 
     def body_poses(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World poses [B, 3], [B, 4] (w, x, y, z) of every body but the world body for ``qpos`` [nq]."""
@@ -323,7 +319,7 @@ def geom_table(model: mujoco.MjModel) -> list[dict[str, Any]]:
 
 
 def run_tune(
-    tenv: TuneEnv,
+    tenv: PinnedMotion,
     weights: np.ndarray | Schedule,
     seconds: float | None = None,
     *,
@@ -331,9 +327,9 @@ def run_tune(
 ) -> TuneRollout:
     """Roll the pinned motion out from its start under constant weights or a schedule.
 
-    The stepping is :func:`amorctl.analysis.rollout.rollout` on ``tenv.base`` (one env); this adds the
-    world body poses of the character and of the reference, from the recorded ``qpos`` and
-    reference frames, for the MCAP log and the plot.
+    The stepping is :func:`amorctl.analysis.rollout.rollout` on ``tenv.base`` (one env); this adds
+    the simulated and reference poses (qpos for videos, world body poses for the MCAP log and the
+    plot) from the recorded qpos and reference frames, read through the env's tracking view.
 
     Args:
         tenv: the env.
@@ -346,8 +342,6 @@ def run_tune(
     Returns:
         the recorded :class:`TuneRollout` (T = ceil(seconds / dt) steps, fewer after a fall).
     """
-    from amorctl.analysis.rollout import rollout
-
     seconds = tenv.motion_seconds if seconds is None else float(seconds)
     if not np.isfinite(seconds) or seconds <= 0:
         raise AmorError(f"--seconds must be a positive number, got {seconds}")
@@ -372,29 +366,6 @@ def run_tune(
     t_ep = np.zeros(steps)
     for k in range(1, steps):
         t_ep[k] = 0.0 if ro.done[k - 1, 0] else t_ep[k - 1] + ro.dt
-    empty = np.zeros((steps, 0))
-    joint_pos = joint_vel = ref_joint_pos = empty
-    body_pos = ref_body_pos = np.zeros((steps, 0, 3))
-    body_quat = ref_body_quat = np.zeros((steps, 0, 4))
-    joint_names: tuple[str, ...] = ()
-    qpos = ref_qpos = None
-    if tenv.tracking:
-        assert ro.qpos is not None and ro.frame_index is not None and ro.joint_pos is not None
-        sim, lib = tenv.base.sim, tenv.base.library
-        joint_names = tuple(lib.joint_names)
-        qpos = ro.qpos[:, 0]
-        joint_pos = qpos[:, sim.joint_qpos]
-        joint_vel = np.gradient(joint_pos, ro.dt, axis=0) if steps > 1 else np.zeros_like(joint_pos)
-        frames = ro.frame_index[:, 0]
-        ref_joint_pos = lib.joint_pos[frames]
-        poses = [tenv.body_poses(q) for q in qpos]
-        ref_poses = [
-            tenv.body_poses(tenv.reference_qpos(int(f), q)) for f, q in zip(frames, qpos, strict=True)
-        ]
-        body_pos = np.stack([p for p, _ in poses])
-        body_quat = np.stack([q for _, q in poses])
-        ref_body_pos = np.stack([p for p, _ in ref_poses])
-        ref_body_quat = np.stack([q for _, q in ref_poses])
     model = tenv.model
     return TuneRollout(
         objective_names=tenv.names,
@@ -405,17 +376,37 @@ def run_tune(
         actions=ro.actions[:, 0],
         rewards=ro.rewards[:, 0].astype(np.float64),
         terminated=ro.terminated[:, 0].copy(),
-        joint_pos=joint_pos,
-        joint_vel=joint_vel,
-        ref_joint_pos=ref_joint_pos,
-        body_pos=body_pos,
-        body_quat=body_quat,
-        ref_body_pos=ref_body_pos,
-        ref_body_quat=ref_body_quat,
         body_names=tenv.body_names,
-        joint_names=joint_names,
         geoms=geom_table(model) if model is not None else [],
         episode_times=t_ep,
+        **_pose_arrays(tenv, ro),
+    )
+
+
+def _pose_arrays(tenv: PinnedMotion, ro: Rollout) -> dict[str, Any]:
+    """The joint, body and qpos arrays of a :class:`TuneRollout` of env 0 of ``ro`` (empty
+    ``[T, 0, ...]`` arrays and no qpos for runs without a character)."""
+    steps, view = ro.num_steps, tenv.view
+    if view is None:
+        empty, e3, e4 = np.zeros((steps, 0)), np.zeros((steps, 0, 3)), np.zeros((steps, 0, 4))
+        return dict(joint_pos=empty, joint_vel=empty, ref_joint_pos=empty, body_pos=e3, body_quat=e4,
+                    ref_body_pos=e3, ref_body_quat=e4, joint_names=(), qpos=None, ref_qpos=None)  # fmt: skip
+    assert ro.qpos is not None and ro.frame_index is not None and ro.qpos_joint_pos is not None
+    qpos = ro.qpos[:, 0]
+    frames = ro.frame_index[:, 0]
+    ref_qpos = view.reference_qpos(frames)
+    joint_pos = ro.qpos_joint_pos[:, 0]
+    poses = [tenv.body_poses(q) for q in qpos]
+    ref_poses = [tenv.body_poses(q) for q in ref_qpos]
+    return dict(
+        joint_pos=joint_pos,
+        joint_vel=np.gradient(joint_pos, ro.dt, axis=0) if steps > 1 else np.zeros_like(joint_pos),
+        ref_joint_pos=view.reference_joint_pos(frames),
+        body_pos=np.stack([p for p, _ in poses]),
+        body_quat=np.stack([q for _, q in poses]),
+        ref_body_pos=np.stack([p for p, _ in ref_poses]),
+        ref_body_quat=np.stack([q for _, q in ref_poses]),
+        joint_names=view.joint_names,
         qpos=qpos,
         ref_qpos=ref_qpos,
     )

@@ -70,12 +70,27 @@ def test_mismatched_names_are_refused_saying_which(tmp_path, biped_walk):
         import_file(path, None, _opts(kin))
 
 
-def test_names_are_required_and_root_body_must_exist(tmp_path, biped_walk):
+def test_without_names_the_character_order_is_checked_by_kinematics(tmp_path, biped_walk):
+    """Issue 16: no joint_names -> the character's order, verified by FK against body positions."""
     kin, motion = biped_walk
     order = np.arange(kin.spec.num_joints)
     path = write_npz(tmp_path / "nonames.npz", kin, motion, order, joint_names=None)
-    with pytest.raises(AmorError, match="never by array position"):
+    back = import_file(path, None, _opts(kin))
+    np.testing.assert_allclose(back.joint_pos, motion.joint_pos, atol=1e-12)
+    assert back.stats["joint_names"] == "from the character"
+    assert back.stats["fk_check_error_m"] < 1e-6
+    swapped = order.copy()
+    swapped[[10, 16]] = swapped[[16, 10]]  # left and right hip pitch exchanged
+    path = write_npz(tmp_path / "swapped.npz", kin, motion, swapped, joint_names=None)
+    with pytest.raises(
+        AmorError, match=r"swapped\.npz: no joint_names.*error \d+\.\d+ m \(body '(left|right)_foot'"
+    ):
         import_file(path, None, _opts(kin))
+
+
+def test_root_body_must_exist(tmp_path, biped_walk):
+    kin, motion = biped_walk
+    order = np.arange(kin.spec.num_joints)
     path = write_npz(tmp_path / "noroot.npz", kin, motion, order, body_names=np.array(["a", "b", "c"]))
     with pytest.raises(AmorError, match="no body named 'torso'"):
         import_file(path, None, _opts(kin))

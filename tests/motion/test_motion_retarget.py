@@ -63,3 +63,27 @@ def test_smooth_lift_covers_what_is_needed():
     lift = smooth_lift(needed)
     assert (lift >= needed - 1e-15).all()
     assert np.abs(np.diff(lift)).max() < 0.05 / 2
+
+
+def test_the_character_spec_chooses_the_method(clip_path, kinematics):
+    """The method is ``CharacterSpec.retarget``, not the character's name: humanoid36 renamed
+    keeps direct mapping; told to use IK it solves IK instead."""
+    from dataclasses import replace
+
+    from amorctl.core.errors import AmorError
+    from amorctl.motion.kinematics import CharacterKinematics
+
+    base = kinematics("humanoid36")
+    assert base.spec.retarget == "direct" and kinematics("biped20").spec.retarget == "ik"
+    src = _source(clip_path, "walk")
+    src = replace(src, times=src.times[:10], root_pos=src.root_pos[:10], local_quat=src.local_quat[:10])
+
+    def with_spec(**changes) -> CharacterKinematics:
+        return replace(base, spec=replace(base.spec, **changes))
+
+    renamed = retarget(src, with_spec(name="my_deepmimic_clone"))
+    assert renamed.stats["method"] == "direct" and renamed.character == "my_deepmimic_clone"
+    np.testing.assert_array_equal(renamed.joint_pos, retarget(src, base).joint_pos)
+    assert retarget(src, with_spec(retarget="ik")).stats["method"] == "ik"
+    with pytest.raises(AmorError, match=r"character 'humanoid36': unknown retargeting method 'fk'"):
+        retarget(src, with_spec(retarget="fk"))

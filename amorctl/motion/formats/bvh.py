@@ -21,6 +21,7 @@ means R = Rz Rx Ry; angles in degrees.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,16 +41,18 @@ from amorctl.core.geometry import (
     quat_normalize,
     quat_rotate,
 )
-from amorctl.motion.formats import Importer, ImportOptions, file_sha256, register_importer
+from amorctl.motion.formats.base import ImportOptions, MotionFormatSpec, file_sha256
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     CANONICAL_JOINTS,
+    MAX_ABS_VALUE,
     Skeleton,
     SourceMotion,
     check_finite,
     check_times,
     deepmimic_skeleton,
 )
+from amorctl.registry import hookimpl
 
 _AXES = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
 _CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
@@ -108,7 +111,10 @@ def parse_bvh(path: Path) -> BvhFile:
     if len(tok) != 2 or tok[0] != "ROOT":
         raise lines.fail(line, "expected 'ROOT <name>'")
     joints: list[BvhJointDef] = []
-    _parse_joint(lines, tok[1], -1, joints)
+    try:
+        _parse_joint(lines, tok[1], -1, joints)
+    except RecursionError:
+        raise AmorError(f"{path}: the joint hierarchy is nested too deeply") from None
     line, tok = lines.next_tokens()
     if tok != ["MOTION"]:
         raise lines.fail(line, "expected 'MOTION'")
@@ -145,6 +151,12 @@ def parse_bvh(path: Path) -> BvhFile:
             rows.append([float(t) for t in tok])
         except ValueError:
             raise lines.fail(line, f"frame {f} holds a value that is not a number") from None
+    extra = sum(1 for rest in lines.lines[lines.i :] if rest.split())
+    if extra:
+        raise AmorError(
+            f"{path}: line {line + 1}: the header says {count} frames ('Frames: {count}') but "
+            f"{count + extra} rows follow"
+        )
     motion = np.asarray(rows, dtype=np.float64).reshape(count, width)
     bad = ~np.isfinite(motion)
     if bad.any():
@@ -203,6 +215,8 @@ def _floats(lines: _Lines, line: int, tok: list[str]) -> np.ndarray:
         raise lines.fail(line, "expected numbers") from None
     if not np.isfinite(vals).all():
         raise lines.fail(line, "non-finite value (NaN or inf)")
+    if (np.abs(vals) > MAX_ABS_VALUE).any():
+        raise lines.fail(line, f"offset beyond {MAX_ABS_VALUE:g} (implausibly large)")
     return vals
 
 
@@ -392,6 +406,10 @@ def load_bvh(path: Path, options: ImportOptions) -> SourceMotion:
     return bvh_to_source(bvh, jmap, str(path), options.name or path.stem, file_sha256(path), options.licence)
 
 
-register_importer(
-    Importer(name="bvh", suffixes=(".bvh",), load=load_bvh, description="Biovision BVH + TOML map")
-)
+SPEC = MotionFormatSpec(name="bvh", suffixes=(".bvh",), load=load_bvh, description="Biovision BVH + TOML map")
+
+
+@hookimpl
+def amorctl_register_motion_formats(register: Callable[[MotionFormatSpec], None]) -> None:
+    """Register :data:`SPEC`."""
+    register(SPEC)

@@ -9,13 +9,14 @@ row i is the time from frame i to frame i+1 (the last row's dt is only used for 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.geometry import quat_from_rotvec, quat_mul, quat_normalize
-from amorctl.motion.formats import Importer, ImportOptions, file_sha256, register_importer
+from amorctl.motion.formats.base import ImportOptions, MotionFormatSpec, file_sha256
 from amorctl.motion.source import (
     C_DM_TO_MJ,
     C_DM_TO_MJ_QUAT,
@@ -27,6 +28,7 @@ from amorctl.motion.source import (
     check_times,
     deepmimic_skeleton,
 )
+from amorctl.registry import hookimpl
 
 #: Columns of one row after dt: joint -> number of values (4 = quaternion, 1 = hinge angle).
 ROW_LAYOUT: tuple[tuple[str, int], ...] = (
@@ -121,6 +123,8 @@ def load_deepmimic(path: Path, options: ImportOptions) -> SourceMotion:
         raise AmorError(
             f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}"
         ) from None
+    except RecursionError:
+        raise AmorError(f"{path}: not a DeepMimic clip (JSON nested too deeply)") from None
     if not isinstance(doc, dict) or "Frames" not in doc:
         raise AmorError(f"{path}: not a DeepMimic clip (no 'Frames' list)")
     frames = doc["Frames"]
@@ -146,11 +150,15 @@ def _read_text(path: Path) -> str:
         raise AmorError(f"{path}: cannot read it: {exc.strerror}") from None
 
 
-register_importer(
-    Importer(
-        name="deepmimic",
-        suffixes=(".txt", ".json"),
-        load=load_deepmimic,
-        description="DeepMimic JSON clips (pybullet_data/data/motions)",
-    )
+SPEC = MotionFormatSpec(
+    name="deepmimic",
+    suffixes=(".txt", ".json"),
+    load=load_deepmimic,
+    description="DeepMimic JSON clips (pybullet_data/data/motions)",
 )
+
+
+@hookimpl
+def amorctl_register_motion_formats(register: Callable[[MotionFormatSpec], None]) -> None:
+    """Register :data:`SPEC`."""
+    register(SPEC)

@@ -18,7 +18,7 @@ Method, per clip (all at the control rate):
    bound (``MAX_JOINT_SPEED``) that keeps the solver from flipping a joint through its range
    between two frames when a target is out of reach.
 4. Floor: the root is lifted wherever collision geometry dips below z = 0
-   (:func:`amorctl.motion.retarget.lift_to_floor`).
+   (:func:`amorctl.motion.retarget.common.lift_to_floor`).
 
 The reported retargeting error is the mean distance between the character's key-point bodies and
 the scaled (unpinned) source key points; the foot sliding before and after is recorded as well.
@@ -26,7 +26,7 @@ the scaled (unpinned) source key points; the foot sliding before and after is re
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import mink
 import mujoco
@@ -34,7 +34,7 @@ import numpy as np
 
 from amorctl.core.geometry import heading_angle, quat_mul, yaw_quat
 from amorctl.motion.kinematics import CharacterKinematics
-from amorctl.motion.retarget import finish
+from amorctl.motion.retarget.common import finish
 from amorctl.motion.source import CharacterMotion, SourceMotion, forward_kinematics, keypoint_positions
 
 CONTACT_HEIGHT = 0.03  # m above the clip's contact level (source units)
@@ -121,20 +121,35 @@ def sliding(pos: np.ndarray, contact: np.ndarray, fps: float) -> float:
     return float(v[both].mean())
 
 
-def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
-    """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK."""
-    fps = (
-        1.0 / float(motion.times[1] - motion.times[0])
-        if motion.times.size > 1
-        else float(kin.spec.control_hz)
-    )
+@dataclass(frozen=True)
+class IkTargets:
+    """What IK tracks, per key point (source skeleton scaled onto the character).
+
+    scale: target / source leg length; scaled: key point -> [T, 3] scaled source positions;
+    targets: the same with feet pinned during contacts; quats: key point -> [T, 4] source
+    orientations (feet flat, turned to the source foot's heading); rest: key point -> [4] zero-pose
+    orientation relative to the root; contacts: foot -> [T] bool; foot_height: foot origin above
+    its sole (m).
+    """
+
+    scale: float
+    scaled: dict[str, np.ndarray]
+    targets: dict[str, np.ndarray]
+    quats: dict[str, np.ndarray]
+    rest: dict[str, np.ndarray]
+    contacts: dict[str, np.ndarray]
+    foot_height: float
+
+
+def ik_targets(motion: SourceMotion, kin: CharacterKinematics, fps: float) -> IkTargets:
+    """Steps 1 and 2 of the method: scale the source key points, detect and pin foot contacts."""
     leg_t, foot_h, rest = target_geometry(kin)
     scale = leg_t / source_leg_length(motion)
     src = keypoint_positions(motion)
     _, jquat = forward_kinematics(motion.skeleton, motion.root_pos, motion.local_quat)
-    src_quat = {k: jquat[:, motion.skeleton.index(j)] for k, (j, _) in motion.skeleton.keypoints.items()}
+    quats = {k: jquat[:, motion.skeleton.index(j)] for k, (j, _) in motion.skeleton.keypoints.items()}
     for f in FEET:  # feet stay flat, turned to the source foot's heading
-        src_quat[f] = yaw_quat(heading_angle(src_quat[f]))
+        quats[f] = yaw_quat(heading_angle(quats[f]))
     contact_level = min(np.percentile(src[f][:, 2], 5) for f in FEET)
     dz = foot_h - scale * contact_level
     scaled = {k: v * scale + np.array([0.0, 0.0, dz]) for k, v in src.items()}
@@ -142,7 +157,11 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
     targets = dict(scaled)
     for f in FEET:
         targets[f] = pin_contacts(scaled[f], contacts[f], foot_h)
+    return IkTargets(scale, scaled, targets, quats, rest, contacts, foot_h)
 
+
+def solve_ik(kin: CharacterKinematics, goal: IkTargets, fps: float, num_frames: int) -> np.ndarray:
+    """Step 3: differential IK frame by frame, warm-started; returns qpos [T, nq]."""
     model = kin.model
     config = mink.Configuration(model)
     tasks: dict[str, mink.FrameTask] = {}
@@ -155,8 +174,8 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
     q0 = model.qpos0.copy()
     for name, angle in kin.spec.standing_pose.items():
         q0[kin.joint_qpos[kin.spec.joint_names().index(name)]] = angle
-    q0[kin.root_qpos : kin.root_qpos + 3] = targets["root"][0]
-    q0[kin.root_qpos + 3 : kin.root_qpos + 7] = src_quat["root"][0]
+    q0[kin.root_qpos : kin.root_qpos + 3] = goal.targets["root"][0]
+    q0[kin.root_qpos + 3 : kin.root_qpos + 7] = goal.quats["root"][0]
     posture.set_target(q0)
     config.update(q0)
     limits: list = [mink.ConfigurationLimit(model)]
@@ -164,12 +183,12 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         limits.append(mink.VelocityLimit(model, {n: MAX_JOINT_SPEED for n in kin.spec.joint_names()}))
     all_tasks = [*tasks.values(), posture]
 
-    num_frames = motion.times.shape[0]
     qpos = np.zeros((num_frames, model.nq))
     for t in range(num_frames):
         for key, task in tasks.items():
-            quat = quat_mul(src_quat[key][t], rest[key]) if key in src_quat else rest[key]
-            task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3(quat), targets[key][t]))
+            rest = goal.rest[key]
+            quat = quat_mul(goal.quats[key][t], rest) if key in goal.quats else rest
+            task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3(quat), goal.targets[key][t]))
         # The first frame converges from the standing pose without a speed bound; later frames
         # split one control period over their iterations, so the speed bound holds per frame.
         iters = ITERATIONS_FIRST if t == 0 else ITERATIONS
@@ -180,6 +199,18 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
             )
             config.integrate_inplace(vel, dt)
         qpos[t] = config.q
+    return qpos
+
+
+def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
+    """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK."""
+    fps = (
+        1.0 / float(motion.times[1] - motion.times[0])
+        if motion.times.size > 1
+        else float(kin.spec.control_hz)
+    )
+    goal = ik_targets(motion, kin, fps)
+    qpos = solve_ik(kin, goal, fps, motion.times.shape[0])
     r = kin.root_qpos
     out = CharacterMotion.retargeted(
         motion,
@@ -187,14 +218,15 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         root_pos=qpos[:, r : r + 3].copy(),
         root_quat=qpos[:, r + 3 : r + 7].copy(),
         joint_pos=qpos[:, kin.joint_qpos].copy(),
-        stats={"method": "ik", "scale": scale},
+        stats={"method": "ik", "scale": goal.scale},
     )
-    out = finish(out, motion, kin, lift=True, targets=scaled)
+    out = finish(out, motion, kin, lift=True, targets=goal.scaled)
     feet_pos, _ = kin.body_poses(
         kin.qpos(out.root_pos, out.root_quat, out.joint_pos), [kin.spec.keypoints[f] for f in FEET]
     )
+    contacts = goal.contacts
     stats = dict(out.stats)
-    stats["foot_sliding_source"] = float(np.mean([sliding(scaled[f], contacts[f], fps) for f in FEET]))
+    stats["foot_sliding_source"] = float(np.mean([sliding(goal.scaled[f], contacts[f], fps) for f in FEET]))
     stats["foot_sliding"] = float(
         np.mean([sliding(feet_pos[:, i], contacts[f], fps) for i, f in enumerate(FEET)])
     )

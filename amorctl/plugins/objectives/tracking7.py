@@ -25,11 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.core.errors import AmorError
-from amorctl.core.frame_layout import TrackingInputs
-from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
+from amorctl.api import AmorError, CharacterSpec, ObjectiveSetSpec, TrackingInputs, hookimpl
 from amorctl.plugins.objectives import tracking7_kernels as k
-from amorctl.registry import hookimpl
 
 NAME = "tracking7"
 

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,8 @@ class TorchCpuBackend:
         spec = get_registry().character(character)  # unknown names fail here, clearly
         library = _load_library(character, dataset)
         steps = max(1, round(episode_seconds * spec.control_hz))
+        if "nthread" not in options and _process_group_size() > 1:
+            options["nthread"] = _threads_per_local_rank()  # the node's cores shared among its ranks
         return TrackingEnv(
             spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
         )
@@ -58,7 +61,10 @@ class TorchCpuBackend:
         if config.ppo.precision == "bf16" and not bf16_supported():
             raise AmorError('[ppo] precision = "bf16", but this CPU has no native bf16 (AVX512-BF16 or AMX)')
         bf16 = config.ppo.precision == "bf16" or (config.ppo.precision == "auto" and bf16_supported())
-        return MOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed, bf16=bf16)
+        distributed = _process_group_size() > 1  # under torchrun: data-parallel over the group
+        return MOPPOTrainer(
+            env, config.network, config.ppo, seed=config.run.seed, bf16=bf16, distributed=distributed
+        )
 
     def load_policy(self, trainer_state: Snapshot, config: TrainConfig) -> Any:
         """A :class:`~amorctl.plugins.backends.torch_cpu.policy.TorchPolicy` from a checkpoint's
@@ -66,6 +72,23 @@ class TorchCpuBackend:
         from amorctl.plugins.backends.torch_cpu.policy import TorchPolicy
 
         return TorchPolicy(trainer_state, config.network)
+
+
+def _process_group_size() -> int:
+    """The size of the initialized ``torch.distributed`` default group (1 without one)."""
+    import torch.distributed as dist
+
+    return dist.get_world_size() if dist.is_available() and dist.is_initialized() else 1
+
+
+def _threads_per_local_rank() -> int:
+    """MuJoCo rollout threads per rank: this machine's cores over the ranks on it (torchrun's
+    ``LOCAL_WORLD_SIZE``), at least one."""
+    try:
+        local = max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+    except ValueError:
+        local = 1
+    return max(1, (os.cpu_count() or 1) // local)
 
 
 def bf16_supported() -> bool:

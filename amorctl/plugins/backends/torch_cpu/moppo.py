@@ -16,6 +16,15 @@ Per iteration:
 4. **Normalizer**: the running observation mean/std is frozen during an iteration (so the rollout
    and the update see the same inputs) and folds in the iteration's observations at its end.
 
+Data-parallel (``torchrun``, docs/distributed.md): each rank steps its own ``N / world size`` envs
+and every rank holds the same networks. Per minibatch step the advantage normalization uses the
+mean and std over all ranks' minibatches, and the gradients (each rank's minibatch mean, weighted
+by its sample count) and the loss statistics are summed in one all-reduce, so every rank takes the
+same Adam step and the adaptive learning rate follows the all-reduced KL. The normalizer folds in
+the moments of all ranks' observations; metrics are reduced over ranks. This is the 1-process
+update on the union of the ranks' minibatches (up to float rounding). Without a process group
+none of it runs and the single-process arithmetic is unchanged.
+
 Shapes: T = ``num_steps``, N = envs, D = obs dim, A = action dim, m = objectives, B = T·N.
 bf16: network forward/backward run under CPU autocast; weights, the Gaussian log-probabilities,
 the ratio and all losses stay float32.
@@ -24,6 +33,7 @@ the ratio and all losses stay float32.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -49,6 +59,7 @@ from amorctl.plugins.backends.torch_cpu.networks import (
 
 EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
 LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
+CHECK_EVERY = 10  # data-parallel: compare the ranks' parameters every this many iterations
 #: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
 EPISODE_STATS = (
     "ep_return",
@@ -59,6 +70,61 @@ EPISODE_STATS = (
     "recent_length",
     "recent_survived",
 )
+
+
+class Replicas:
+    """The ``torch.distributed`` default process group a data-parallel trainer averages over.
+
+    Every collective is timed (``seconds``), so the iteration's communication share is measured.
+    """
+
+    def __init__(self) -> None:
+        import torch.distributed as dist
+
+        self.dist = dist
+        self.rank = dist.get_rank()
+        self.size = dist.get_world_size()
+        self.seconds = 0.0
+
+    def _run(self, fn: Any, *args: Any, **kwargs: Any) -> None:
+        t0 = time.perf_counter()
+        try:
+            fn(*args, **kwargs)
+        except RuntimeError as exc:  # a peer died or timed out: one clear line, never a hang
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise AmorError(
+                f"rank {self.rank}/{self.size}: MOPPO {getattr(fn, '__name__', 'collective')} failed, "
+                f"another rank died or stopped answering: {first}",
+                exit_code=3,
+            ) from None
+        self.seconds += time.perf_counter() - t0
+
+    def sum_(self, tensor: torch.Tensor) -> torch.Tensor:
+        """All-reduce ``tensor`` in place (sum over ranks); returns it."""
+        self._run(self.dist.all_reduce, tensor, op=self.dist.ReduceOp.SUM)
+        return tensor
+
+    def broadcast_modules(self, modules: dict[str, nn.Module]) -> None:
+        """Overwrite every rank's parameters and buffers with rank 0's."""
+        for module in modules.values():
+            for tensor in module.state_dict().values():
+                self._run(self.dist.broadcast, tensor, src=0)
+
+    def check_identical(self, modules: dict[str, nn.Module], iteration: int) -> None:
+        """Raise AmorError unless every rank holds byte-identical parameters and buffers."""
+        digest = hashlib.sha256()
+        for module in modules.values():
+            for key, tensor in module.state_dict().items():
+                digest.update(key.encode() + tensor.detach().contiguous().numpy().tobytes())
+        words = torch.from_numpy(np.frombuffer(digest.digest(), dtype=np.int64).copy())
+        low, high = words.clone(), words.clone()
+        self._run(self.dist.all_reduce, low, op=self.dist.ReduceOp.MIN)
+        self._run(self.dist.all_reduce, high, op=self.dist.ReduceOp.MAX)
+        if not torch.equal(low, high):
+            raise AmorError(
+                f"data-parallel training: the ranks' parameters differ at iteration {iteration} "
+                "(non-deterministic kernels or a lost update); stopping instead of training on"
+            )
 
 
 @dataclass
@@ -84,7 +150,13 @@ class MOPPOTrainer:
     """MOPPO for any ``VectorEnv``; implements :class:`~amorctl.core.contracts.Trainer`."""
 
     def __init__(
-        self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int, bf16: bool = False
+        self,
+        env: VectorEnv,
+        network: NetworkConfig,
+        ppo: PPOConfig,
+        seed: int,
+        bf16: bool = False,
+        distributed: bool = False,
     ) -> None:
         self.env = env
         self.cfg = ppo
@@ -102,11 +174,16 @@ class MOPPOTrainer:
         self.normalizer = RunningNormalizer(env.obs_dim, clip=network.obs_clip)
         self.params = [*self.actor.parameters(), *self.critic.parameters()]
         self.optimizer = torch.optim.Adam(self.params, lr=self.learning_rate)
+        # data-parallel over the default process group: rank 0's initial networks on every rank
+        self.replicas = Replicas() if distributed else None
+        self.world_size = 1 if self.replicas is None else self.replicas.size
+        if self.replicas is not None:
+            self.replicas.broadcast_modules(self._modules())
 
         obs, _ = env.reset(seed=seed)
         self.obs = torch.tensor(obs, dtype=torch.float32)  # [N, D] the current observations
         if ppo.normalize_obs:
-            self.normalizer.update(self.obs)  # first estimate from the reset states
+            self._update_normalizer(self.obs)  # first estimate from the reset states
         n, m = env.num_envs, self.num_objectives
         self.ep_return = torch.zeros(n, m, dtype=torch.float64)  # running per-objective sums
         self.ep_scalar = torch.zeros(n, dtype=torch.float64)  # running sum of r·w
@@ -122,9 +199,28 @@ class MOPPOTrainer:
         """Restart every env episode with ``seed``; running episode sums start from zero."""
         obs, _ = self.env.reset(seed=seed)
         self.obs = torch.tensor(obs, dtype=torch.float32)
-        self.ep_return.zero_()
-        self.ep_scalar.zero_()
-        self.ep_length.zero_()
+        n, m = self.env.num_envs, self.num_objectives  # sized anew: a resume may change N per rank
+        self.ep_return = torch.zeros(n, m, dtype=torch.float64)
+        self.ep_scalar = torch.zeros(n, dtype=torch.float64)
+        self.ep_length = torch.zeros(n, dtype=torch.int64)
+        if self.replicas is not None:  # another world size restarts: one fresh noise stream per rank
+            self.generator.manual_seed(seed)
+
+    @torch.no_grad()
+    def _update_normalizer(self, obs: torch.Tensor) -> None:
+        """Fold observations [B, D] into the normalizer: this rank's, or all ranks' moments."""
+        if self.replicas is None:
+            self.normalizer.update(obs)
+            return
+        x = obs.to(torch.float64).reshape(-1, self.env.obs_dim)
+        count_sum = torch.cat([torch.tensor([float(x.shape[0])], dtype=torch.float64), x.sum(0)])
+        sums = self.replicas.sum_(count_sum)
+        count = float(sums[0])
+        if count == 0:
+            return
+        mean = sums[1:] / count
+        var = self.replicas.sum_(((x - mean) ** 2).sum(0)) / count
+        self.normalizer.fold(mean, var, count)
 
     # ------------------------------------------------------------------ networks
     def _autocast(self) -> contextlib.AbstractContextManager[Any]:
@@ -204,7 +300,7 @@ class MOPPOTrainer:
         following = torch.cat([val_buf[1:], last_values[None]], dim=0)  # V(s_{t+1}) where the episode goes on
         next_val_buf = torch.where(trunc_buf[..., None], next_val_buf, following)
         t_policy += time.perf_counter() - t0
-        self.env_steps += T * N
+        self.env_steps += T * N * self.world_size  # all ranks' env steps (equal N per rank)
         batch = Batch(
             obs=obs_buf.reshape(T * N, D),
             actions=act_buf.reshape(T * N, A),
@@ -270,7 +366,16 @@ class MOPPOTrainer:
 
         # scalarize the vector advantage with each sample's own weights, normalize per minibatch
         adv = (batch.advantages[idx] * batch.weights[idx]).sum(-1)
-        adv = (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
+        if self.replicas is None:
+            adv = (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
+        else:  # the moments of the union of all ranks' minibatches
+            a = adv.detach().double()
+            n, total, squares = self.replicas.sum_(
+                torch.stack([torch.tensor(float(a.numel()), dtype=torch.float64), a.sum(), (a * a).sum()])
+            )
+            adv_mean = total / n
+            adv_std = torch.sqrt(torch.clamp(squares / n - adv_mean * adv_mean, min=0.0))
+            adv = (adv - adv_mean.float()) / (adv_std.float() + 1e-8)
         clip = self.cfg.clip_coef
         policy_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
 
@@ -308,26 +413,53 @@ class MOPPOTrainer:
             }
         return loss, stats
 
-    def update(self, batch: Batch) -> dict[str, float]:
-        """``num_epochs`` passes of minibatch Adam steps; returns stats averaged over minibatches."""
-        size = batch.obs.shape[0]
-        sums: dict[str, float] = {}
-        count = 0
+    def minibatch_plan(self, size: int) -> list[torch.Tensor]:
+        """The sample indices of every minibatch step of one update, in order (``num_epochs``
+        shuffles of ``range(size)``, each cut into ``num_minibatches`` parts)."""
+        plan: list[torch.Tensor] = []
         for _ in range(self.cfg.num_epochs):
             order = torch.randperm(size, generator=self.generator)
-            for idx in order.tensor_split(self.cfg.num_minibatches):
-                loss, stats = self.minibatch_loss(batch, idx)
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
-                nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
-                self.optimizer.step()
-                if self.cfg.lr_schedule == "adaptive":
-                    self._adapt_learning_rate(float(stats["kl"]))
-                for key, value in stats.items():
-                    sums[key] = sums.get(key, 0.0) + float(value)
-                count += 1
+            plan.extend(order.tensor_split(self.cfg.num_minibatches))
+        return plan
+
+    def update(self, batch: Batch, plan: list[torch.Tensor] | None = None) -> dict[str, float]:
+        """``num_epochs`` passes of minibatch Adam steps; returns stats averaged over minibatches.
+
+        ``plan`` (default :meth:`minibatch_plan`) fixes the minibatches, e.g. to compare a
+        data-parallel update with the 1-process update on the same samples."""
+        plan = self.minibatch_plan(batch.obs.shape[0]) if plan is None else plan
+        sums: dict[str, float] = {}
+        count = 0
+        for idx in plan:
+            loss, stats = self.minibatch_loss(batch, idx)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if self.replicas is not None:
+                stats = self._average_gradients(stats, len(idx))
+            nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+            self.optimizer.step()
+            if self.cfg.lr_schedule == "adaptive":
+                self._adapt_learning_rate(float(stats["kl"]))
+            for key, value in stats.items():
+                sums[key] = sums.get(key, 0.0) + float(value)
+            count += 1
         return {key: value / count for key, value in sums.items()}
+
+    def _average_gradients(self, stats: dict[str, torch.Tensor], n: int) -> dict[str, torch.Tensor]:
+        """Data-parallel: replace this rank's gradients and minibatch statistics (means over its
+        ``n`` samples) by the sample-weighted means over all ranks, in one all-reduce."""
+        assert self.replicas is not None
+        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in self.params]
+        values = torch.stack([v.float() for v in stats.values()])
+        flat = torch.cat([*(g.reshape(-1) for g in grads), values, torch.ones(1)]) * float(n)
+        self.replicas.sum_(flat)
+        flat = flat / flat[-1]
+        offset = 0
+        for p, g in zip(self.params, grads, strict=True):
+            p.grad = flat[offset : offset + g.numel()].view_as(g).clone()
+            offset += g.numel()
+        return {key: flat[offset + i] for i, key in enumerate(stats)}
 
     def _adapt_learning_rate(self, kl: float) -> None:
         """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
@@ -342,16 +474,64 @@ class MOPPOTrainer:
     def iteration(self) -> dict[str, float]:
         """Rollout, returns, update, normalizer; returns this iteration's metrics."""
         start = time.perf_counter()
+        comm_before = 0.0 if self.replicas is None else self.replicas.seconds
         batch, times = self.collect_rollout()
         self.compute_returns(batch)
         t0 = time.perf_counter()
         stats = self.update(batch)
         times["update"] = time.perf_counter() - t0
         if self.cfg.normalize_obs:
-            self.normalizer.update(batch.obs)
+            self._update_normalizer(batch.obs)
         self.iteration_count += 1
+        if self.replicas is None:
+            elapsed = time.perf_counter() - start
+            return self._metrics(batch, stats, times, elapsed)
+        if self.iteration_count % CHECK_EVERY == 0:
+            self.replicas.check_identical(self._modules(), self.iteration_count)
+        metrics = self._metrics(batch, stats, times, time.perf_counter() - start)
+        metrics.update(self._reduced_metrics(batch))
         elapsed = time.perf_counter() - start
-        return self._metrics(batch, stats, times, elapsed)
+        metrics["time/iteration_s"] = elapsed
+        metrics["env_steps_per_s"] = batch.obs.shape[0] * self.world_size / max(elapsed, 1e-9)
+        metrics["time/comm_frac"] = (self.replicas.seconds - comm_before) / elapsed
+        return metrics
+
+    @torch.no_grad()
+    def _reduced_metrics(self, batch: Batch) -> dict[str, float]:
+        """Data-parallel: episode statistics, mean rewards and explained variances over all ranks
+        (one all-reduce); each rank's window holds its own last ``EPISODE_WINDOW`` episodes."""
+        assert self.replicas is not None and batch.returns is not None
+        m = self.num_objectives
+        filled = ~torch.isnan(self.recent_length)
+        ret, val = batch.returns.double(), batch.values.double()
+        res = ret - val
+        parts = [
+            torch.tensor([float(filled.sum()), self.episodes, ret.shape[0]], dtype=torch.float64),
+            self.recent_return[filled].sum(0),  # [m]
+            torch.stack([self.recent_scalar[filled].sum(), self.recent_length[filled].sum()]),
+            self.recent_survived[filled].sum().reshape(1),
+            batch.rewards.double().sum(dim=(0, 1)),  # [m]
+            ret.sum(0),
+            (ret * ret).sum(0),
+            res.sum(0),
+            (res * res).sum(0),
+        ]
+        total = self.replicas.sum_(torch.cat(parts))
+        k, episodes, b = (float(v) for v in total[:3])
+        ep_ret, (ep_scalar, ep_len), ep_surv = total[3 : 3 + m], total[3 + m : 5 + m], float(total[5 + m])
+        rew, r1, r2, e1, e2 = total[6 + m :].reshape(5, m)
+        nan = float("nan")
+        out: dict[str, float] = {"episodes": episodes}
+        for i, name in enumerate(self.names):
+            out[f"return/{name}"] = float(ep_ret[i]) / k if k else nan
+            out[f"reward/{name}"] = float(rew[i]) / b
+            var_ret = float(r2[i]) / b - (float(r1[i]) / b) ** 2
+            var_res = float(e2[i]) / b - (float(e1[i]) / b) ** 2
+            out[f"explained_variance/{name}"] = 1 - var_res / var_ret if var_ret > 0 else nan
+        out["return/scalarized"] = float(ep_scalar) / k if k else nan
+        out["episode/length"] = float(ep_len) / k if k else nan
+        out["episode/survival"] = ep_surv / k if k else nan
+        return out
 
     def _metrics(
         self, batch: Batch, stats: dict[str, float], times: dict[str, float], elapsed: float
@@ -392,7 +572,10 @@ class MOPPOTrainer:
         return {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}
 
     def state_dict(self) -> Snapshot:
-        """Weights, normalizer, Adam state, RNG, current observations and episode statistics."""
+        """Weights, normalizer, Adam state, RNG, current observations and episode statistics
+        (this rank's; the training loop merges the ranks' snapshots into one checkpoint)."""
+        if self.replicas is not None:
+            self.replicas.check_identical(self._modules(), self.iteration_count)
         arrays = modules_to_arrays(self._modules())
         optim = self.optimizer.state_dict()
         for index, slot in optim["state"].items():

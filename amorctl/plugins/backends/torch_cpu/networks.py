@@ -92,8 +92,12 @@ class RunningNormalizer(nn.Module):
         batch_count = x.shape[0]
         if batch_count == 0:
             return
-        batch_mean = x.mean(0)
-        batch_var = x.var(0, unbiased=False)
+        self.fold(x.mean(0), x.var(0, unbiased=False), batch_count)
+
+    @torch.no_grad()
+    def fold(self, batch_mean: torch.Tensor, batch_var: torch.Tensor, batch_count: float) -> None:
+        """Fold a batch's float64 mean [D], population variance [D] and size into the statistics
+        (data-parallel training computes them over all ranks' batches)."""
         total = self.count + batch_count
         delta = batch_mean - self.mean
         new_mean = self.mean + delta * batch_count / total

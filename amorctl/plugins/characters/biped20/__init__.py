@@ -13,8 +13,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from amorctl.core.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
-from amorctl.registry import hookimpl
+from amorctl.api import ActuatorModel, CharacterSpec, JointGroup, JointSpec, hookimpl
 
 #: op3.xml servo parameters (XM430-W350 servos): position-actuator kp, forcerange, joint defaults.
 KP = 21.1  # N·m/rad

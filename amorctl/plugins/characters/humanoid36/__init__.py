@@ -15,8 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from amorctl.core.specs import ActuatorModel, CharacterSpec, JointGroup, JointSpec
-from amorctl.registry import hookimpl
+from amorctl.api import ActuatorModel, CharacterSpec, JointGroup, JointSpec, hookimpl
 
 _PI = 3.14159  # the MJCF writes ranges with these literals
 _HALF_PI = 1.5708
@@ -92,6 +91,7 @@ SPEC = CharacterSpec(
     physics_hz=250,
     control_hz=50,
     licence="MIT (DeepMimic humanoid proportions)",
+    retarget="direct",  # built on the DeepMimic skeleton: joint rotations map onto hinge triplets
 )
 
 

@@ -10,8 +10,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from amorctl.core.specs import ActuatorModel, CharacterSpec, JointSpec
-from amorctl.registry import hookimpl
+from amorctl.api import ActuatorModel, CharacterSpec, JointSpec, hookimpl
 
 _HERE = Path(__file__).parent
 _D = math.radians

@@ -1,141 +1,39 @@
-"""Evaluate a trained run: Pareto sweeps over weights, tracking metrics, weight sweeps.
+"""Sweeps over weights in one batched rollout each: Pareto fronts (``amorctl pareto``, the paper's
+Fig. 4) and one objective's weight against its return (``evaluate --sweep``, Fig. 6).
 
-The library behind ``amorctl pareto`` and ``amorctl evaluate`` (docs/pareto.md, docs/evaluate.md).
-Everything runs batched: a sweep over K weight vectors is one :func:`amorctl.analysis.rollout.rollout`
-with one weight vector per environment. Nothing here prints.
+A sweep over K weight vectors is one :func:`amorctl.analysis.rollout.rollout` with one weight
+vector per environment. Nothing here prints. Documents: docs/pareto.md, docs/evaluate.md.
 
-Shapes: K = weight vectors, G = motion groups, E = episodes per weight, m = objectives.
+Shapes: K = weight vectors, G = motion groups, E = episodes per weight, L = sweep levels,
+m = objectives.
 """
 
 from __future__ import annotations
 
 import csv
-import dataclasses
 import io
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from amorctl.analysis.eval_env import (
+    ALL_MOTIONS,
+    Progress,
+    check_objective,
+    close_env,
+    episode_limit,
+    make_eval_env,
+)
 from amorctl.analysis.front import FrontSummary, HypervolumeMethod, summarize_front
-from amorctl.analysis.rollout import Rollout, WeightsSource, rollout, tracking_env
+from amorctl.analysis.rollout import Episodes, rollout
 from amorctl.core.config import TrainConfig
-from amorctl.core.contracts import Policy
 from amorctl.core.errors import AmorError
-from amorctl.core.schedule import Schedule
-from amorctl.core.vecenv import VectorEnv
-from amorctl.core.weights import format_weights
-from amorctl.envs.factory import make_env
-from amorctl.motion.resolve import resolve_name
-from amorctl.train.rundir import RunDir
 
-ALL_MOTIONS = "all"  # the group name when no --motion is given (episodes draw clips at random)
-JOINT_GROUP_LABELS = {"upper": "up", "lower": "lo", "feet": "feet"}
 DEFAULT_SWEEP_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0)
-
-Progress = Callable[[int, int], None]
-
-
-# ---------------------------------------------------------------------------- run and env
-def open_run(run: Path) -> tuple[Policy, TrainConfig]:
-    """The newest checkpoint's policy and the config of the run in ``run`` (see :class:`RunDir`)."""
-    opened = RunDir.open(run)
-    return opened.policy(), opened.config
-
-
-def check_objective(name: str, names: Sequence[str]) -> int:
-    """Index of objective ``name``; AmorError listing the objectives when unknown."""
-    if name not in names:
-        raise AmorError(f"unknown objective {name!r}; the run's objectives are {', '.join(names)}")
-    return list(names).index(name)
-
-
-def make_eval_env(
-    config: TrainConfig,
-    num_envs: int,
-    *,
-    motions: Sequence[str] | None = None,
-    env_motion: np.ndarray | None = None,
-    seed: int = 0,
-) -> tuple[VectorEnv, list[str]]:
-    """The run's env sized to ``num_envs``, optionally restricted to named motions.
-
-    Args:
-        config: the run's config.
-        num_envs: N.
-        motions: motion (clip) names as the user typed them; resolved against the run's dataset.
-        env_motion: [N] index into ``motions`` per env: each env always tracks that motion.
-            Without it, episodes draw among ``motions`` at random.
-        seed: the env's seed.
-
-    Returns:
-        (env, resolved motion names; ``[ALL_MOTIONS]`` when ``motions`` is empty).
-
-    Raises:
-        AmorError: motions for a run without motions (toy, gym), or an unknown motion name.
-    """
-    if num_envs < 1:
-        raise AmorError(f"need at least one environment, got {num_envs}")
-    if motions and config.env.kind != "tracking":
-        raise AmorError(f"--motion needs a motion-tracking run; this run's env is {config.env.kind!r}")
-    cfg = dataclasses.replace(
-        config,
-        env=dataclasses.replace(config.env, num_envs=int(num_envs)),
-        run=dataclasses.replace(config.run, seed=int(seed)),
-    )
-    env = make_env(cfg)
-    if not motions:
-        return env, [ALL_MOTIONS]
-    inner = tracking_env(env)
-    try:
-        if inner is None:
-            raise AmorError("--motion: this run's env has no motion library")
-        clip_names = [c.name for c in inner.library.clips]
-        where = f"the run's {inner.library.character} dataset"
-        resolved = [resolve_name(q, clip_names, where) for q in motions]
-        indices = np.array([clip_names.index(r) for r in resolved], dtype=np.int64)
-        if env_motion is None:
-            inner.select_clips(clips=indices)
-        else:
-            inner.select_clips(env_clips=indices[np.asarray(env_motion, dtype=np.int64)])
-    except BaseException:
-        _close(env)
-        raise
-    return env, resolved
-
-
-def _close(env: Any) -> None:
-    close = getattr(env, "close", None)
-    if callable(close):
-        close()
-
-
-def sample_weights(
-    m: int, samples: int | None = None, *, grid: int | None = None, seed: int = 0
-) -> tuple[np.ndarray, str]:
-    """The K weight vectors of a sweep: Dirichlet(1) samples, or a uniform simplex grid.
-
-    Returns:
-        ([K, m] float64 rows on the simplex, a description such as ``"dirichlet(1)"``).
-
-    Raises:
-        AmorError: ``samples < 1`` or ``grid < 1``.
-    """
-    from amorctl.core.weights import sample_dirichlet, simplex_grid
-
-    if grid is not None:
-        if grid < 1:
-            raise AmorError(f"--grid must be >= 1 divisions, got {grid}")
-        return simplex_grid(m, grid), f"simplex grid ({grid} divisions)"
-    k = 64 if samples is None else samples
-    if k < 1:
-        raise AmorError(f"--samples must be >= 1, got {k}")
-    w = sample_dirichlet(np.random.default_rng(seed), k, m).astype(np.float64)
-    return w / w.sum(axis=1, keepdims=True), "dirichlet(1)"
 
 
 # ---------------------------------------------------------------------------- pareto
@@ -237,31 +135,12 @@ def pareto_sweep(
         result = rollout(policy, env, env_w, episodes=1, seed=seed, record_steps=False, on_step=on_step)
         seconds = time.perf_counter() - began
         steps = int(result.episodes.length.sum())
-        limit = int(getattr(tracking_env(env) or env, "max_episode_steps", 0) or getattr(env, "max_steps", 0))
+        limit = episode_limit(env)
     finally:
-        _close(env)
+        close_env(env)
 
-    eps = result.episodes
-    returns = np.full((n, m), np.nan)
-    returns[eps.env] = eps.returns
-    survived = np.zeros(n)
-    survived[eps.env] = eps.survived
-    returns = returns.reshape(g, k + 1, episodes, m)
-    survived = survived.reshape(g, k + 1, episodes)
-    out_groups = []
-    for gi in range(g):
-        pts = returns[gi, :k].mean(axis=1)
-        summary = summarize_front(pts, w, reference_point, hv_method=hv_method, seed=seed)
-        out_groups.append(
-            ParetoGroup(
-                motion=names[gi] if groups else ALL_MOTIONS,
-                points=pts,
-                points_std=returns[gi, :k].std(axis=1),
-                survival=survived[gi, :k].mean(axis=1),
-                equal_point=returns[gi, k].mean(axis=0),
-                summary=summary,
-            )
-        )
+    motion_names = names if groups else [ALL_MOTIONS]
+    out_groups = _fronts(result.episodes, w, motion_names, episodes, reference_point, hv_method, seed)
     rule = (
         "given (--ref-point)"
         if reference_point is not None
@@ -279,6 +158,40 @@ def pareto_sweep(
         seconds=seconds,
         reference_point_rule=rule,
     )
+
+
+def _fronts(
+    eps: Episodes,
+    w: np.ndarray,
+    motions: Sequence[str],
+    episodes: int,
+    reference_point: Sequence[float] | None,
+    hv_method: HypervolumeMethod,
+    seed: int,
+) -> list[ParetoGroup]:
+    """One :class:`ParetoGroup` per motion from the episodes of the env layout of :func:`pareto_sweep`."""
+    (k, m), g = w.shape, len(motions)
+    n = g * (k + 1) * episodes
+    returns = np.full((n, m), np.nan)
+    returns[eps.env] = eps.returns
+    survived = np.zeros(n)
+    survived[eps.env] = eps.survived
+    returns = returns.reshape(g, k + 1, episodes, m)
+    survived = survived.reshape(g, k + 1, episodes)
+    out = []
+    for gi in range(g):
+        pts = returns[gi, :k].mean(axis=1)
+        out.append(
+            ParetoGroup(
+                motion=motions[gi],
+                points=pts,
+                points_std=returns[gi, :k].std(axis=1),
+                survival=survived[gi, :k].mean(axis=1),
+                equal_point=returns[gi, k].mean(axis=0),
+                summary=summarize_front(pts, w, reference_point, hv_method=hv_method, seed=seed),
+            )
+        )
+    return out
 
 
 def _floats(a: np.ndarray) -> list[Any]:
@@ -369,137 +282,6 @@ def pareto_csv(sweep: ParetoSweep) -> str:
     return buf.getvalue()
 
 
-# ---------------------------------------------------------------------------- tracking metrics
-@dataclass
-class EvalResult:
-    """Metrics of one weight setting (a row of the Table 2-like comparison).
-
-    Attributes:
-        label: ``uniform``, ``weights``, ``schedule``, or a sweep level.
-        weights: a description of the weights (``up=0.5,...`` or the schedule file).
-        episodes: episodes evaluated.
-        metrics: joint MAE in degrees (``joint_mae_deg`` total and ``joint_mae_deg/<group>`` for
-            up / lo / feet), ``mpjpe_mm`` (end effectors), ``survival_rate``,
-            ``episode_length_steps`` / ``episode_length_s`` (means), ``return/<objective>`` and
-            ``return_std/<objective>`` (unscaled cumulative rewards). Tracking metrics are None
-            for envs without a reference motion.
-        per_motion: the same metrics per motion when motions were named.
-    """
-
-    label: str
-    weights: str
-    episodes: int
-    metrics: dict[str, float | None]
-    per_motion: dict[str, dict[str, float | None]] = field(default_factory=dict)
-
-
-def tracking_metrics(
-    ro: Rollout, groups: dict[str, np.ndarray] | None = None, env_mask: np.ndarray | None = None
-) -> dict[str, float | None]:
-    """Metrics of the finished episodes of ``ro`` (optionally only envs in ``env_mask`` [N]).
-
-    Joint MAE (degrees) and MPJPE (mm) are means over every valid step of finished episodes (and
-    over joints / end effectors): ``mean |q - q_ref|`` and ``mean ||p - p_ref||`` with p the
-    end-effector positions relative to the root in its heading frame (root-aligned MPJPE).
-
-    Args:
-        ro: a rollout with per-step arrays.
-        groups: {label: joint indices [j]} for per-group MAE (e.g. up / lo / feet).
-        env_mask: [N] bool, envs to include (default all).
-    """
-    eps = ro.episodes
-    n = ro.valid.shape[1]
-    mask = np.ones(n, dtype=bool) if env_mask is None else np.asarray(env_mask, dtype=bool)
-    sel = mask[eps.env]
-    names = ro.objective_names
-    out: dict[str, float | None] = {}
-    count = int(sel.sum())
-    if count == 0:
-        raise AmorError("no episode finished; raise --episodes or the step limit")
-    out["episodes"] = float(count)
-    out["survival_rate"] = float(eps.survived[sel].mean())
-    out["episode_length_steps"] = float(eps.length[sel].mean())
-    out["episode_length_s"] = float(eps.length[sel].mean() * ro.dt)
-    for i, name in enumerate(names):
-        out[f"return/{name}"] = float(eps.returns[sel, i].mean())
-        out[f"return_std/{name}"] = float(eps.returns[sel, i].std())
-    step_mask = (ro.episode_id >= 0) & ro.valid & mask[None, :]  # [T, N]
-    if ro.joint_pos is None or ro.ref_joint_pos is None or ro.ee_pos is None or ro.ref_ee_pos is None:
-        out["joint_mae_deg"] = None
-        out["mpjpe_mm"] = None
-        for label in groups or {}:
-            out[f"joint_mae_deg/{label}"] = None
-        return out
-    err = np.abs(ro.joint_pos[step_mask] - ro.ref_joint_pos[step_mask])  # [S, J] rad
-    out["joint_mae_deg"] = float(np.degrees(err.mean())) if err.size else None
-    for label, idx in (groups or {}).items():
-        idx = np.asarray(idx, dtype=np.int64)
-        out[f"joint_mae_deg/{label}"] = (
-            float(np.degrees(err[:, idx].mean())) if len(idx) and err.size else None
-        )
-    dist = np.linalg.norm(ro.ee_pos[step_mask] - ro.ref_ee_pos[step_mask], axis=-1)  # [S, E] m
-    out["mpjpe_mm"] = float(1000.0 * dist.mean()) if dist.size else None
-    return out
-
-
-def joint_groups(env: Any) -> dict[str, np.ndarray]:
-    """{up, lo, feet: joint indices} of a tracking env's character ({} for other envs)."""
-    inner = tracking_env(env)
-    if inner is None:
-        return {}
-    ch = inner.character
-    return {label: np.array(ch.group_indices(group)) for group, label in JOINT_GROUP_LABELS.items()}
-
-
-def describe_weights(source: WeightsSource, names: Sequence[str]) -> str:
-    """A short text for a weight source: ``up=0.5,...``, ``schedule <file>`` or ``per env``."""
-    if isinstance(source, Schedule):
-        return f"schedule {source.source}"
-    if callable(source):
-        return "time-varying"
-    w = np.asarray(source, dtype=np.float64)
-    return format_weights(w, names) if w.ndim == 1 else "per env"
-
-
-def evaluate_setting(
-    policy: Any,
-    config: TrainConfig,
-    weights: WeightsSource,
-    *,
-    label: str,
-    motions: Sequence[str] | None = None,
-    episodes: int = 8,
-    seed: int = 0,
-    on_step: Progress | None = None,
-) -> EvalResult:
-    """Evaluate one weight setting over ``episodes`` episodes per motion, in one batched rollout.
-
-    Each of the N = E (or E per named motion) envs runs one episode from a reference-state
-    initialization; the seed fixes the starts, so settings evaluated with one seed are compared
-    on the same starts.
-
-    Raises:
-        AmorError: episodes < 1, an unknown motion, bad weights.
-    """
-    if episodes < 1:
-        raise AmorError(f"--episodes must be >= 1, got {episodes}")
-    g = len(motions) if motions else 1
-    env_motion = np.repeat(np.arange(g), episodes) if motions else None
-    env, resolved = make_eval_env(config, g * episodes, motions=motions, env_motion=env_motion, seed=seed)
-    try:
-        names = tuple(env.reward_space.names)
-        ro = rollout(policy, env, weights, episodes=1, seed=seed, on_step=on_step)
-        groups = joint_groups(env)
-    finally:
-        _close(env)
-    metrics = tracking_metrics(ro, groups)
-    per_motion: dict[str, dict[str, float | None]] = {}
-    if motions and env_motion is not None:
-        for gi, name in enumerate(resolved):
-            per_motion[name] = tracking_metrics(ro, groups, env_motion == gi)
-    return EvalResult(label, describe_weights(weights, names), episodes, metrics, per_motion)
-
-
 # ---------------------------------------------------------------------------- weight sweep (Fig. 6)
 @dataclass
 class WeightSweep:
@@ -584,7 +366,7 @@ def weight_sweep(
             on_step=on_step,
         )
     finally:
-        _close(env)
+        close_env(env)
     eps = ro.episodes
     returns = np.full(n, np.nan)
     returns[eps.env] = eps.returns[:, idx]

@@ -1,0 +1,110 @@
+"""The one public module plugin authors import.
+
+A plugin (a character, an objective set, a backend or a motion format) needs ``hookimpl`` to mark
+its hooks, the spec type it registers, and the contracts and data types its code receives or
+returns. All of them are re-exported here, so that amorctl can move its internals without
+breaking plugins::
+
+    from amorctl.api import CharacterSpec, JointSpec, ActuatorModel, hookimpl
+
+    @hookimpl
+    def amorctl_register_characters(register):
+        register(CharacterSpec(...))
+
+What is here, by plugin kind (see ``docs/plugins.md``):
+
+- every kind: :data:`hookimpl`, :class:`AmorError` (errors the user can fix), ``__version__``;
+- characters: :class:`CharacterSpec`, :class:`JointSpec`, :class:`ActuatorModel`,
+  :data:`KEYPOINTS`, :data:`JOINT_GROUPS`;
+- objective sets: :class:`ObjectiveSetSpec`, :class:`ObjectiveSet`, :class:`TrackingInputs`,
+  :class:`FrameParts`, :func:`split_frame`, :func:`frame_dim`;
+- backends: :class:`BackendSpec`, :class:`Backend`, :class:`Trainer`, :class:`Policy`,
+  :class:`Snapshot`, :class:`SnapshotEnv`, :class:`TrackingView`, :func:`tracking_view`,
+  :class:`VectorEnv`, :class:`TrainConfig`;
+- motion formats: :class:`MotionFormatSpec`, :class:`ImportOptions`, :class:`SourceMotion`,
+  :class:`CharacterMotion`, :class:`Skeleton`, :func:`deepmimic_skeleton` (the canonical source
+  skeleton), :data:`CANONICAL_JOINTS`, :func:`check_finite`, :func:`check_times`,
+  :func:`file_sha256`.
+
+Layer: this module sits above ``motion/`` (format plugins return its motion records) and below
+``envs/``; nothing in amorctl below ``plugins/`` imports it.
+"""
+
+from __future__ import annotations
+
+from amorctl import __version__
+from amorctl.core.config import TrainConfig
+from amorctl.core.contracts import (
+    Backend,
+    ObjectiveSet,
+    Policy,
+    Snapshot,
+    SnapshotEnv,
+    TrackingView,
+    Trainer,
+    tracking_view,
+)
+from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import FrameParts, TrackingInputs, frame_dim, split_frame
+from amorctl.core.specs import (
+    JOINT_GROUPS,
+    KEYPOINTS,
+    ActuatorModel,
+    BackendSpec,
+    CharacterSpec,
+    ImportOptions,
+    JointGroup,
+    JointSpec,
+    MotionFormatSpec,
+    ObjectiveSetSpec,
+)
+from amorctl.core.vecenv import VectorEnv
+from amorctl.motion.formats.base import file_sha256
+from amorctl.motion.source import (
+    CANONICAL_JOINTS,
+    CharacterMotion,
+    Skeleton,
+    SourceMotion,
+    check_finite,
+    check_times,
+    deepmimic_skeleton,
+)
+from amorctl.registry import hookimpl
+
+__all__ = [
+    "CANONICAL_JOINTS",
+    "JOINT_GROUPS",
+    "KEYPOINTS",
+    "ActuatorModel",
+    "AmorError",
+    "Backend",
+    "BackendSpec",
+    "CharacterMotion",
+    "CharacterSpec",
+    "FrameParts",
+    "ImportOptions",
+    "JointGroup",
+    "JointSpec",
+    "MotionFormatSpec",
+    "ObjectiveSet",
+    "ObjectiveSetSpec",
+    "Policy",
+    "Skeleton",
+    "Snapshot",
+    "SnapshotEnv",
+    "SourceMotion",
+    "TrackingInputs",
+    "TrackingView",
+    "TrainConfig",
+    "Trainer",
+    "VectorEnv",
+    "__version__",
+    "check_finite",
+    "check_times",
+    "deepmimic_skeleton",
+    "file_sha256",
+    "frame_dim",
+    "hookimpl",
+    "split_frame",
+    "tracking_view",
+]

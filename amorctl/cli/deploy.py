@@ -1,0 +1,277 @@
+"""``amorctl deploy``: export a run to an ONNX bundle, run it sim2sim, check it (docs/deploy.md).
+
+Torch-free at import: ``export`` imports torch when it runs; ``run`` and ``check`` never do, so
+``python -m amorctl.cli.deploy run ...`` works on a machine without torch (the full ``amorctl``
+entry point imports every subcommand, some of which need torch).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, err_console, print_json
+from amorctl.core.errors import AmorError
+
+app = typer.Typer(
+    help="Deploy a policy: ONNX bundle with the weights as an input, sim2sim runtime, robustness check.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1", "")
+
+WeightsOpt = Annotated[
+    str | None,
+    typer.Option("--weights", "-w", help="Constant weights, e.g. up=1,smooth=2 (normalized), or 'uniform'."),
+]
+ScheduleOpt = Annotated[
+    Path | None, typer.Option("--schedule", "-s", help="Weight schedule TOML (docs/schedules.md).")
+]
+RandomizeOpt = Annotated[
+    Path | None, typer.Option("--randomize", help="Dynamics randomization TOML (docs/deploy.md).")
+]
+
+
+@app.command("export")
+def export(
+    run: Annotated[Path, typer.Argument(help="Run directory (config.toml + checkpoints/).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Bundle directory to create (must not exist).")],
+    checkpoint: Annotated[
+        int | None, typer.Option("--checkpoint", help="Iteration of the checkpoint (default: the newest).")
+    ] = None,
+    json_: JsonFlag = False,
+) -> None:
+    """Write policy.onnx (weights w as an input), deploy.json and motions.npz; checks parity."""
+    from amorctl.deploy.export import export_bundle
+
+    res = export_bundle(run, out, checkpoint)
+    info = {
+        "out": str(res.out),
+        "iteration": res.iteration,
+        "inputs": res.inputs,
+        "outputs": res.outputs,
+        "parity_max_abs": res.parity_max_abs,
+        "parity_samples": res.parity_samples,
+        "onnx_bytes": res.onnx_bytes,
+    }
+    if json_:
+        print_json(info)
+        return
+    console.print(f"bundle {res.out} (run {run}, iteration {res.iteration})")
+    for name, shape in res.inputs.items():
+        console.print(f"  input  {name:10s} {shape}")
+    for name, shape in res.outputs.items():
+        console.print(f"  output {name:10s} {shape}")
+    console.print(
+        f"parity onnxruntime vs torch: max |Δ| = {res.parity_max_abs:.3g} "
+        f"over {res.parity_samples} observations"
+    )
+
+
+def _weights_source(bundle: Any, weights: str | None, schedule: Path | None) -> tuple[Any, str]:
+    """Constant weights or a schedule (or uniform when neither is given), and its label."""
+    from amorctl.core.schedule import load_schedule
+    from amorctl.core.weights import parse_weights
+
+    if weights is not None and schedule is not None:
+        raise AmorError("give --weights or --schedule, not both")
+    if schedule is not None:
+        return load_schedule(
+            schedule, bundle.objectives, bundle.motions.names if bundle.motions else None
+        ), "schedule"
+    if weights is not None:
+        return parse_weights(weights, bundle.objectives), "weights"
+    return np.full(len(bundle.objectives), 1.0 / len(bundle.objectives)), "uniform"
+
+
+def _load(bundle_dir: Path, randomize: Path | None) -> tuple[Any, Any]:
+    from amorctl.deploy.bundle import read_bundle
+    from amorctl.deploy.randomize import load_randomization
+
+    rand = load_randomization(randomize) if randomize is not None else None  # validate before heavy work
+    return read_bundle(bundle_dir), rand
+
+
+def _listen_address(listen: str, host: str | None) -> tuple[str, int]:
+    from amorctl.deploy.runtime_input import parse_listen
+
+    url_host, port = parse_listen(listen)
+    if host is not None:
+        return host, port
+    if url_host not in LOOPBACK:
+        raise AmorError(
+            f"--listen {listen}: binds only loopback unless --host {url_host} is given explicitly"
+        )
+    return "127.0.0.1" if url_host in ("", "localhost") else url_host, port
+
+
+@app.command("run")
+def run_cmd(
+    bundle_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Bundle directory (deploy export).")],
+    motion: Annotated[
+        str | None, typer.Option("--motion", "-m", help="Clip to track (default: the first).")
+    ] = None,
+    weights: WeightsOpt = None,
+    schedule: ScheduleOpt = None,
+    listen: Annotated[
+        str | None, typer.Option("--listen", help="Live weights as JSON over UDP: udp://127.0.0.1:PORT.")
+    ] = None,
+    host: Annotated[
+        str | None, typer.Option("--host", help="Bind the live endpoint to this address (default loopback).")
+    ] = None,
+    stale_timeout: Annotated[
+        float, typer.Option("--stale-timeout", help="Seconds without a valid live message before holding.")
+    ] = 1.0,
+    randomize: RandomizeOpt = None,
+    realtime: Annotated[
+        bool, typer.Option("--realtime", help="Pace to the wall clock; enforce deadlines.")
+    ] = False,
+    max_misses: Annotated[
+        int, typer.Option("--max-misses", help="Deadline misses in a row that latch the hold (--realtime).")
+    ] = 3,
+    seconds: Annotated[float | None, typer.Option("--seconds", help="Length (default: the clip's).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the randomized dynamics and pushes.")] = 0,
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Write an MCAP log (Foxglove schemas).")
+    ] = None,
+    stop_on_fall: Annotated[
+        bool, typer.Option("--stop-on-fall/--no-stop-on-fall", help="End at a fall, or restart the clip.")
+    ] = True,
+    json_: JsonFlag = False,
+) -> None:
+    """Drive the character in MuJoCo with the ONNX policy at the control rate (no torch needed)."""
+    from amorctl.deploy.runtime import Runtime
+    from amorctl.deploy.runtime_input import UdpWeights
+
+    if listen is not None and schedule is not None:
+        raise AmorError("--listen takes initial --weights, not a --schedule")
+    if host is not None and listen is None:
+        raise AmorError("--host needs --listen")
+    if out is not None and (out.is_dir() or not out.parent.is_dir()):
+        raise AmorError(f"{out}: not a writable file path (is a directory, or its directory is missing)")
+    bundle, rand = _load(bundle_dir, randomize)
+    source, _ = _weights_source(bundle, weights, schedule)
+    runtime = Runtime(bundle, randomization=rand, realtime=realtime, max_misses=max_misses)
+    live = None
+    if listen is not None:
+        address = _listen_address(listen, host)
+        live = UdpWeights(bundle.objectives, source, *address, stale_timeout=stale_timeout)
+        err_console.print(f"listening for weights on udp://{live.address[0]}:{live.address[1]}")
+        source = live
+    stop = {"flag": False}
+
+    def _interrupt(signum: int, frame: Any) -> None:
+        stop["flag"] = True
+
+    previous = signal.signal(signal.SIGINT, _interrupt)
+    try:
+        if out is not None:
+            from amorctl.deploy.runtime_log import McapLogger
+
+            with McapLogger(out, runtime, {"seed": str(seed)}) as log:
+                runtime.logger = log
+                result = runtime.run(source, motion=motion, seconds=seconds, seed=seed,
+                                     stop_on_fall=stop_on_fall, should_stop=lambda: stop["flag"])  # fmt: skip
+        else:
+            result = runtime.run(source, motion=motion, seconds=seconds, seed=seed,
+                                 stop_on_fall=stop_on_fall, should_stop=lambda: stop["flag"])  # fmt: skip
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if live is not None:
+            live.close()
+    info = result.to_dict()
+    info["interrupted"] = stop["flag"]
+    info["log"] = str(out) if out is not None else None
+    if json_:
+        print_json(info)
+        return
+    head = f"{bundle_dir}  motion={info['motion']}  {info['steps']} steps ({info['seconds']:.2f} s)"
+    if info["fell_at"] is not None:
+        head += f"  fell at {info['fell_at']:.2f} s"
+    if info["diverged"]:
+        head += "  simulation diverged"
+    console.print(head)
+    console.print(
+        f"joint MAE {info['joint_mae_deg']:.2f} deg, action rate {info['action_rate']:.4g} rad², "
+        f"policy {info['policy_ms_median']:.3f} ms median / {info['policy_ms_p99']:.3f} ms p99, "
+        f"held {info['held_steps']} steps"
+    )
+    if info["input"] is not None:
+        i = info["input"]
+        console.print(
+            f"live input: {i['accepted']} accepted, {i['rejected']} rejected {i['rejected_by_reason']}"
+        )
+    for e in info["events"]:
+        console.print(f"  {e['t']:7.2f} s  {e['kind']}  {e['detail']}")
+    if out is not None:
+        console.print(f"log: {out}")
+
+
+@app.command("check")
+def check_cmd(
+    bundle_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Bundle directory (deploy export).")],
+    episodes: Annotated[int, typer.Option("--episodes", "-n", help="Episodes per condition.")] = 8,
+    randomize: RandomizeOpt = None,
+    weights: WeightsOpt = None,
+    schedule: ScheduleOpt = None,
+    motion: Annotated[
+        str | None, typer.Option("--motion", "-m", help="Only this clip (default: cycle through all).")
+    ] = None,
+    seconds: Annotated[float, typer.Option("--seconds", help="Episode length in seconds.")] = 10.0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of episode i is seed + i.")] = 0,
+    json_: JsonFlag = False,
+) -> None:
+    """Sim2sim robustness: uniform weights vs --weights/--schedule under the same randomized episodes."""
+    from amorctl.deploy.check import run_check
+    from amorctl.deploy.runtime import Runtime
+
+    if weights is None and schedule is None:
+        raise AmorError("give --weights or --schedule to compare with uniform weights")
+    bundle, rand = _load(bundle_dir, randomize)
+    source, label = _weights_source(bundle, weights, schedule)
+    report = run_check(Runtime(bundle, randomization=rand), source, label=label, episodes=episodes,
+                       seconds=seconds, motion=motion, seed=seed)  # fmt: skip
+    if json_:
+        print_json(report)
+        return
+    title = (
+        f"sim2sim check of {bundle_dir} ({report['seconds']:g} s episodes, "
+        f"randomization: {report['randomization_file']})"
+    )
+    columns = ("weights", "episodes", "survival", "joint MAE (deg)", "action rate (rad²)", "mean s", "falls")
+    table = Table(*columns, title=title)
+    for c in report["conditions"]:
+        table.add_row(c["label"], str(c["episodes"]), f"{c['survival']:.0%}", f"{c['joint_mae_deg']:.2f}",
+                      f"{c['action_rate']:.4g}", f"{c['mean_seconds']:.2f}", str(c["falls"]))  # fmt: skip
+    console.print(table)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m amorctl.cli.deploy``: the deploy commands alone (no torch needed for run and
+    check), with the same error convention as ``amorctl`` (one ``error:`` line, exit 2)."""
+    debug = os.environ.get("AMORCTL_DEBUG", "") not in ("", "0")
+    try:
+        app(args=argv, prog_name="amorctl deploy")
+    except SystemExit as exit_:
+        code = exit_.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except AmorError as err:
+        if debug:
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        return err.exit_code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,510 @@
+"""``amorctl deploy export``: a run's policy as an ONNX bundle whose weights are an input.
+
+The torch module that is exported is rebuilt from :meth:`Policy.export_arrays` (backend-neutral
+names), so any backend's policy exports: normalizer ``clip((x - mean) / scale, -c, c)``, the
+actor MLP's deterministic mean, then the PD targets (``ref_frame``'s next-frame joint angles +
+action in residual mode, the action itself in absolute mode), clamped to the joint ranges. The
+observation is fed as separate named inputs: ``obs`` (every part that is neither context nor
+weights, in observation order), one input per context part (``ref_frame``, ``latent``,
+``future_frames``) and ``w``. Exported with the TorchScript exporter (``dynamo=False``) at
+opset :data:`~amorctl.deploy.bundle.OPSET` with a dynamic batch axis; the bundle is built in a
+temporary directory and renamed into place only after onnxruntime reproduces the torch policy
+(parity check), so a failed export writes nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import asdict
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from amorctl import __version__
+from amorctl.core.contracts import Policy, tracking_view
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import CharacterSpec
+from amorctl.deploy.bundle import (
+    CONTEXT_PARTS,
+    FORMAT,
+    META_FILE,
+    MOTIONS_FILE,
+    ONNX_FILE,
+    OPSET,
+    compiled_model_hash,
+    open_session,
+    part_element_names,
+)
+from amorctl.train.rundir import RunDir
+
+#: largest |onnxruntime - torch| the export accepts (PD targets and raw actions, rad).
+PARITY_TOLERANCE = 1e-5
+#: random observations of the parity check (plus the m simplex corners and the uniform weights).
+PARITY_SAMPLES = 1024
+#: offset of the joint angles inside a frame vector (h [1], root_rot6d [6], root_vel [6]).
+FRAME_JOINT_OFFSET = 13
+
+
+@dataclasses.dataclass
+class ExportResult:
+    """What an export wrote and measured."""
+
+    out: Path
+    iteration: int
+    inputs: dict[str, list[Any]]
+    outputs: dict[str, list[Any]]
+    parity_max_abs: float
+    parity_samples: int
+    onnx_bytes: int
+
+
+# ---------------------------------------------------------------------------- env facts
+
+
+@dataclasses.dataclass
+class EnvFacts:
+    """What export needs to know about a run's env beyond the policy."""
+
+    layout: dict[str, tuple[int, int]]
+    character: CharacterSpec | None
+    fall_drop: float | None
+    future_offsets: list[int]
+
+
+def _env_facts(env: Any) -> EnvFacts:
+    """The observation layout, character, fall drop (m) and future-frame offsets of a run's env.
+
+    ENV INTERNALS, in this one place: the layout comes from ``TrackingView.observation_layout``
+    when the env provides a tracking view; until every env does, it falls back to the tracking
+    env's ``obs_layout`` (slices). The fall drop and the future-frame offsets are not part of
+    any contract yet, so they are read from the env's ``fall_drop`` / ``future_frames``.
+    """
+    view = tracking_view(env)
+    inner = env
+    for _ in range(8):  # through wrappers to the env that has the attributes
+        if hasattr(inner, "obs_layout") or not hasattr(inner, "env"):
+            break
+        inner = inner.env
+    if view is not None:
+        layout = {k: (int(a), int(b)) for k, (a, b) in view.observation_layout.items()}
+        character: CharacterSpec | None = view.character
+    elif hasattr(inner, "obs_layout"):
+        layout = {k: (int(s.start), int(s.stop)) for k, s in inner.obs_layout.items()}
+        character = getattr(inner, "character", None)
+    else:
+        return EnvFacts({}, None, None, [])
+    drop = getattr(inner, "fall_drop", None)
+    if drop is None and character is not None:
+        drop = character.standing_height / 3.0  # TrackingEnv's default fall rule
+    future = [int(o) for o in getattr(inner, "future_frames", ())]
+    return EnvFacts(layout, character, None if drop is None else float(drop), future)
+
+
+# ---------------------------------------------------------------------------- the torch module
+
+
+class ExportModule(nn.Module):
+    """The deterministic policy as a function of named inputs (module docstring).
+
+    Args:
+        arrays, meta: :meth:`Policy.export_arrays`.
+        pieces: for each observation part, in observation order, (input index, start, stop) of
+            its columns inside that input.
+        action_mode: ``"residual"``, ``"absolute"`` or ``"raw"`` (no character: the action only).
+        ref: (input index, start, stop) of the next-frame joint angles (residual mode).
+        low, high: [A] joint ranges (rad) the PD targets are clamped to.
+    """
+
+    def __init__(
+        self,
+        arrays: Mapping[str, np.ndarray],
+        meta: Mapping[str, Any],
+        pieces: list[tuple[int, int, int]],
+        action_mode: str,
+        ref: tuple[int, int, int] | None,
+        low: np.ndarray | None,
+        high: np.ndarray | None,
+    ) -> None:
+        super().__init__()
+        if meta.get("activation") != "elu":
+            raise AmorError(f"policy activation {meta.get('activation')!r} is not supported by the exporter")
+        self.pieces, self.action_mode, self.ref = pieces, action_mode, ref
+        t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float32))  # noqa: E731
+        self.register_buffer("mean", t(arrays["normalizer/mean"]))
+        self.register_buffer("scale", t(arrays["normalizer/scale"]))
+        self.clip = float(meta["obs_clip"])
+        layers: list[nn.Module] = []
+        n = int(meta["actor_layers"])
+        for i in range(n):
+            w, b = t(arrays[f"actor/{i}/weight"]), t(arrays[f"actor/{i}/bias"])
+            lin = nn.Linear(w.shape[1], w.shape[0])
+            lin.weight.data.copy_(w)
+            lin.bias.data.copy_(b)
+            layers.append(lin)
+            if i < n - 1:
+                layers.append(nn.ELU())
+        self.net = nn.Sequential(*layers)
+        self.has_limits = low is not None and high is not None
+        self.register_buffer("low", t(low if low is not None else np.zeros(0)))
+        self.register_buffer("high", t(high if high is not None else np.zeros(0)))
+
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        obs = torch.cat([inputs[k][:, a:b] for k, a, b in self.pieces], dim=1)
+        x = torch.clamp((obs - self.mean) / self.scale, -self.clip, self.clip)
+        action = self.net(x)
+        if self.action_mode == "raw":
+            return (action,)
+        target = action
+        if self.action_mode == "residual" and self.ref is not None:
+            k, a, b = self.ref
+            target = inputs[k][:, a:b] + action
+        if self.has_limits:
+            target = torch.minimum(torch.maximum(target, self.low), self.high)
+        return target, action
+
+
+# ---------------------------------------------------------------------------- signature
+
+
+def plan_inputs(
+    layout: Mapping[str, tuple[int, int]], obs_dim: int, m: int
+) -> tuple[dict[str, list[tuple[str, int, int]]], list[tuple[int, int, int]]]:
+    """The ONNX inputs for an observation layout.
+
+    Returns ({input name: [(part, start, stop) in the observation]}, pieces for
+    :class:`ExportModule`). Input order: ``obs``, the context parts present, ``w``.
+    """
+    parts = sorted(((a, b, name) for name, (a, b) in layout.items() if b > a), key=lambda p: p[0])
+    covered = sum(b - a for a, b, _ in parts)
+    if covered != obs_dim or parts[-1][1] != obs_dim or parts[-1][1] - parts[-1][0] != m:
+        raise AmorError(f"observation layout {dict(layout)} does not tile the {obs_dim} observation entries")
+    groups: dict[str, list[tuple[str, int, int]]] = {"obs": []}
+    for a, b, name in parts[:-1]:
+        groups.setdefault(name if name in CONTEXT_PARTS else "obs", []).append((name, a, b))
+    groups["w"] = [(parts[-1][2], parts[-1][0], parts[-1][1])]
+    if not groups["obs"]:
+        del groups["obs"]
+    order = list(groups)
+    offsets: dict[str, int] = {}
+    located: dict[str, tuple[int, int, int]] = {}
+    for name in order:
+        col = 0
+        for part, a, b in groups[name]:
+            located[part] = (order.index(name), col, col + b - a)
+            col += b - a
+        offsets[name] = col
+    pieces = [located[name] for _, _, name in parts]
+    return groups, pieces
+
+
+def split_observation(
+    obs: np.ndarray, groups: Mapping[str, list[tuple[str, int, int]]]
+) -> dict[str, np.ndarray]:
+    """Cut full observations [B, D] into the ONNX inputs {name: [B, n]} float32."""
+    return {
+        name: np.concatenate([obs[:, a:b] for _, a, b in parts], axis=1).astype(np.float32)
+        for name, parts in groups.items()
+    }
+
+
+# ---------------------------------------------------------------------------- parity
+
+
+def parity_observations(
+    mean: np.ndarray, scale: np.ndarray, m: int, samples: int, seed: int = 0
+) -> np.ndarray:
+    """[samples + m + 1, D] float32 random observations around the normalizer's statistics
+    (±3 standard deviations, some beyond the clip) whose weights are the m simplex corners, the
+    uniform vector and Dirichlet(1) draws."""
+    rng = np.random.default_rng(seed)
+    n = samples + m + 1
+    obs = mean + scale * rng.normal(0.0, 3.0, size=(n, mean.shape[0]))
+    w = np.concatenate([np.eye(m), np.full((1, m), 1.0 / m), rng.dirichlet(np.ones(m), size=samples)])
+    obs[:, -m:] = w
+    return obs.astype(np.float32)
+
+
+def reference_outputs(
+    policy: Callable[[np.ndarray], np.ndarray],
+    obs: np.ndarray,
+    action_mode: str,
+    ref_cols: tuple[int, int] | None,
+    low: np.ndarray | None,
+    high: np.ndarray | None,
+) -> dict[str, np.ndarray]:
+    """What the exported graph must output, computed from the torch policy in float64."""
+    action = np.asarray(policy(obs), dtype=np.float64)
+    if action_mode == "raw":
+        return {"action": action}
+    target = action.copy()
+    if action_mode == "residual" and ref_cols is not None:
+        target = obs[:, ref_cols[0] : ref_cols[1]].astype(np.float64) + action
+    if low is not None and high is not None:
+        target = np.clip(target, low, high)
+    return {"pd_target": target, "action": action}
+
+
+# ---------------------------------------------------------------------------- export
+
+
+def _plugin_location(spec: CharacterSpec) -> dict[str, str]:
+    """The entry-point module of the character's plugin package and the MJCF path inside it."""
+    mjcf = spec.mjcf_path.resolve()
+    import importlib.util
+
+    for ep in entry_points(group="amorctl"):
+        module = ep.value.split(":")[0]
+        try:
+            found = importlib.util.find_spec(module)
+        except (ImportError, ValueError):
+            continue
+        if found is None:
+            continue
+        base = (
+            Path(next(iter(found.submodule_search_locations)))
+            if found.submodule_search_locations
+            else Path(found.origin or ".").parent
+        ).resolve()
+        if mjcf.is_relative_to(base):
+            return {"plugin_module": module, "mjcf": str(mjcf.relative_to(base))}
+    raise AmorError(
+        f"{mjcf}: character {spec.name!r}'s model is not inside an installed amorctl plugin package"
+    )
+
+
+def _motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
+    """The run's motion library as the bundle's ``motions.npz`` arrays (docs/deploy.md)."""
+    from amorctl.motion.dataset import load_dataset
+
+    cfg = run.config.env
+    if cfg.dataset:
+        path = Path(cfg.dataset)
+    else:
+        from amorctl.motion.cache import default_dataset
+
+        path = default_dataset(cfg.character)
+    if not path.is_file():
+        raise AmorError(f"{path}: the run's motion dataset is not found")
+    lib = load_dataset(path)
+    out = {
+        "frames": np.asarray(lib.frames, dtype=np.float32),
+        "z": np.asarray(lib.z, dtype=np.float32),
+    }
+    for key in ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
+                "ee_pos", "ee_quat", "ee_lin_vel"):  # fmt: skip
+        out[key] = np.asarray(getattr(lib, key), dtype=np.float64)
+    out["clip_starts"] = lib.starts.astype(np.int64)
+    out["clip_lengths"] = lib.lengths.astype(np.int64)
+    out["clip_names"] = np.array([c.name for c in lib.clips], dtype=np.str_)
+    return out
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise AmorError(f"{out}: already exists; choose a new --out directory or remove it")
+    if not out.parent.is_dir():
+        raise AmorError(f"{out}: directory {out.parent} does not exist")
+
+
+def export_bundle(
+    run_path: str | Path,
+    out: str | Path,
+    iteration: int | None = None,
+    *,
+    samples: int = PARITY_SAMPLES,
+    tolerance: float = PARITY_TOLERANCE,
+) -> ExportResult:
+    """Export the policy of ``run_path`` (checkpoint ``iteration``, default the newest) to ``out``.
+
+    Raises:
+        AmorError: no run or checkpoint, ``out`` exists, the policy cannot be exported, or the
+            onnxruntime/torch parity check fails (nothing is written then).
+    """
+    import onnx
+
+    out = Path(out)
+    _check_out(out)
+    run = RunDir.open(run_path)
+    ckpt = run.checkpoint(iteration)
+    policy: Policy = run.policy_of(ckpt)
+    snap = policy.export_arrays()
+    names = list(policy.objectives)
+    m, obs_dim = len(names), int(policy.obs_dim)
+
+    env = run.env(num_envs=1)
+    try:
+        facts = _env_facts(env)
+    finally:
+        close = getattr(env, "close", None)
+        if callable(close):
+            close()
+    layout, spec, fall_drop = facts.layout, facts.character, facts.fall_drop
+    if not layout:
+        layout = dict(policy.observation_layout)
+    groups, pieces = plan_inputs(layout, obs_dim, m)
+
+    action_mode, low, high, ref, ref_cols = "raw", None, None, None, None
+    joints: list[str] = []
+    ees: list[str] = []
+    if spec is not None:
+        action_mode = run.config.env.action_mode
+        joints, ees = list(spec.joint_names()), list(spec.end_effectors)
+        low = np.array([j.range[0] for j in spec.joints])
+        high = np.array([j.range[1] for j in spec.joints])
+        if action_mode == "residual":
+            if "ref_frame" not in layout:
+                raise AmorError(
+                    "residual-action policy without a ref_frame in its observation cannot be exported"
+                )
+            a = layout["ref_frame"][0] + FRAME_JOINT_OFFSET
+            ref_cols = (a, a + len(joints))
+            k = list(groups).index("ref_frame")
+            ref = (k, FRAME_JOINT_OFFSET, FRAME_JOINT_OFFSET + len(joints))
+
+    module = ExportModule(snap.arrays, snap.meta, pieces, action_mode, ref, low, high).eval()
+    inputs = {
+        name: {
+            "shape": ["batch", sum(b - a for _, a, b in parts)],
+            "parts": {p: [a, b] for p, a, b in parts},
+            "elements": [e for p, a, b in parts for e in part_element_names(p, b - a, joints, ees, names)],
+        }
+        for name, parts in groups.items()
+    }
+    out_names = ["action"] if action_mode == "raw" else ["pd_target", "action"]
+    outputs = {
+        n: {
+            "shape": ["batch", policy.action_dim],
+            "elements": joints or [f"action/{i}" for i in range(policy.action_dim)],
+        }
+        for n in out_names
+    }
+
+    obs = parity_observations(snap.arrays["normalizer/mean"], snap.arrays["normalizer/scale"], m, samples)
+    want = reference_outputs(policy, obs, action_mode, ref_cols, low, high)
+    feeds = split_observation(obs, groups)
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        onnx_path = tmp / ONNX_FILE
+        example = tuple(torch.from_numpy(feeds[n][:2]) for n in groups)
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(
+                module, example, str(onnx_path), dynamo=False, opset_version=OPSET,
+                input_names=list(groups), output_names=out_names,
+                dynamic_axes={n: {0: "batch"} for n in [*groups, *out_names]},
+            )  # fmt: skip
+        got = dict(zip(out_names, open_session(onnx_path).run(out_names, feeds), strict=True))
+        delta = max(float(np.max(np.abs(got[n].astype(np.float64) - want[n]))) for n in out_names)
+        if not np.isfinite(delta) or delta > tolerance:
+            raise AmorError(
+                f"export parity check failed: onnxruntime differs from the torch policy by {delta:.3g} "
+                f"(tolerance {tolerance:g}) on {len(obs)} observations; nothing written"
+            )
+        meta: dict[str, Any] = {
+            "format": FORMAT,
+            "amorctl_version": __version__,
+            "run": str(run.path),
+            "iteration": int(ckpt.iteration),
+            "objectives": names,
+            "inputs": inputs,
+            "outputs": outputs,
+            "observation_layout": {k: [int(a), int(b)] for k, (a, b) in layout.items()},
+            "action": {
+                "mode": action_mode,
+                "output": out_names[0],
+                "pd_target": (
+                    "q* = clamp(ref_frame[joint_pos] + action, joint_ranges)"
+                    if action_mode == "residual"
+                    else "q* = clamp(action, joint_ranges)"
+                    if action_mode == "absolute"
+                    else None
+                ),
+                "reference_columns": None
+                if ref is None
+                else {"input": "ref_frame", "start": ref[1], "stop": ref[2]},
+                "clamp": "joint_ranges" if low is not None else None,
+                "units": "rad" if joints else None,
+            },
+            "joint_names": joints,
+            "joint_ranges": []
+            if low is None
+            else [[float(a), float(b)] for a, b in zip(low, high, strict=True)],
+            "pd_gains": {"kp": [j.kp for j in spec.joints], "kd": [j.kd for j in spec.joints]}
+            if spec
+            else None,
+            "torque_limits": [j.torque_limit for j in spec.joints] if spec else [],
+            "actuator_model": asdict(spec.actuator) if spec else None,
+            "default_pose": [float(spec.standing_pose.get(j, 0.0)) for j in joints] if spec else [],
+            "control_hz": spec.control_hz if spec else None,
+            "physics_hz": spec.physics_hz if spec else None,
+            "character": spec.name if spec else None,
+            "model_sha256": compiled_model_hash(spec) if spec else None,
+            "character_model": (
+                {
+                    **_plugin_location(spec),
+                    "root_body": spec.root_body,
+                    "end_effectors": list(spec.end_effectors),
+                    "joint_groups": [j.group for j in spec.joints],
+                    "standing_height": spec.standing_height,
+                    "min_standing_height": spec.min_standing_height,
+                }
+                if spec
+                else None
+            ),
+            "termination": {"fall_height_drop": fall_drop} if spec else None,
+            "context": {
+                "inputs": [n for n in groups if n in CONTEXT_PARTS],
+                "future_frame_offsets": facts.future_offsets,
+                "next_frame": "context of the step from s_t is the reference frame t+1 and its latent",
+                "clip_end": "the reference restarts its clip at the first frame after the last",
+            },
+            "motions": None,
+            "opset": OPSET,
+            "parity": {"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
+        }
+        if spec is not None:
+            arrays = _motions_arrays(run)
+            if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
+                raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
+            np.savez(tmp / MOTIONS_FILE, **arrays)
+            digest = hashlib.sha256((tmp / MOTIONS_FILE).read_bytes()).hexdigest()
+            meta["motions"] = {"file": MOTIONS_FILE, "sha256": digest, "clips": arrays["clip_names"].tolist()}
+        model = onnx.load(str(onnx_path))
+        del model.metadata_props[:]
+        for key, value in meta.items():
+            prop = model.metadata_props.add()
+            prop.key, prop.value = key, json.dumps(value)
+        model.producer_name, model.producer_version = "amorctl", __version__
+        onnx.checker.check_model(model)
+        onnx.save(model, str(onnx_path))
+        (tmp / META_FILE).write_text(json.dumps(meta, indent=1) + "\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        tmp.chmod(0o777 & ~umask)  # mkdtemp makes it private; the bundle is an ordinary directory
+        if out.exists():
+            out.rmdir()  # checked empty above
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return ExportResult(
+        out=out,
+        iteration=int(ckpt.iteration),
+        inputs={k: v["shape"] for k, v in inputs.items()},
+        outputs={k: v["shape"] for k, v in outputs.items()},
+        parity_max_abs=delta,
+        parity_samples=len(obs),
+        onnx_bytes=(out / ONNX_FILE).stat().st_size,
+    )

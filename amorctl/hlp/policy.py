@@ -1,0 +1,118 @@
+"""pi_H(w_t | s_t, c_t): a Gaussian over m logits pushed through a softmax, so w_t lies on the simplex.
+
+The actor is a 3-layer ELU MLP giving the logits' mean mu [N, m]; a state-independent log-std
+[m] sets the spread. PPO treats the logits u ~ N(mu, sigma) as the action (log-probabilities and
+entropy are the Gaussian's); the env receives ``w = softmax(u)``. The critic is a second ELU MLP
+with one output. Inputs are normalized by a running mean/std (:class:`RunningNorm`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+
+def mlp(sizes: list[int], out: int) -> nn.Sequential:
+    """ELU MLP ``sizes[0] -> sizes[1] ... -> out`` (no activation on the output)."""
+    layers: list[nn.Module] = []
+    for a, b in itertools.pairwise(sizes):
+        layers += [nn.Linear(a, b), nn.ELU()]
+    layers.append(nn.Linear(sizes[-1], out))
+    return nn.Sequential(*layers)
+
+
+class RunningNorm(nn.Module):
+    """Running mean/std of inputs [N, D] (float64 statistics), applied as clipped z-scores."""
+
+    def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-8) -> None:
+        super().__init__()
+        self.clip, self.eps = clip, eps
+        self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
+        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """Fold a batch [N, D] into the statistics (Chan et al.'s parallel update)."""
+        x = x.detach().to(torch.float64).reshape(-1, self.mean.shape[0])
+        n = x.shape[0]
+        if n == 0:
+            return
+        mean, var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = mean - self.mean
+        self.mean += delta * n / total
+        self.var.copy_((self.var * self.count + var * n + delta**2 * self.count * n / total) / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        std = torch.sqrt(self.var + self.eps).to(x.dtype)
+        return torch.clamp((x - self.mean.to(x.dtype)) / std, -self.clip, self.clip)
+
+
+def softmax_weights(logits: torch.Tensor) -> torch.Tensor:
+    """w = softmax(u) [N, m], computed in float64 and renormalized so every row sums to 1 exactly
+    to float32 precision and is >= 0, for any finite logits (the max is subtracted first)."""
+    w = torch.softmax(logits.to(torch.float64), dim=-1)
+    return (w / w.sum(-1, keepdim=True)).to(torch.float32)
+
+
+class HlpActorCritic(nn.Module):
+    """Actor (logit mean + log-std) and critic of the HLP.
+
+    Args:
+        obs_dim: the HLP observation size (the LLP observation without its last m entries).
+        m: objectives.
+        actor_hidden / critic_hidden: ELU MLP widths.
+        init_std: initial standard deviation of the logits.
+        obs_clip: normalizer clip.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        m: int,
+        actor_hidden: tuple[int, ...],
+        critic_hidden: tuple[int, ...],
+        init_std: float,
+        obs_clip: float,
+    ) -> None:
+        super().__init__()
+        self.obs_dim, self.m = obs_dim, m
+        self.normalizer = RunningNorm(obs_dim, obs_clip)
+        self.actor = mlp([obs_dim, *actor_hidden], m)
+        self.critic = mlp([obs_dim, *critic_hidden], 1)
+        self.log_std = nn.Parameter(torch.full((m,), math.log(init_std)))
+        with torch.no_grad():  # start near uniform w: small last layer (as rsl_rl / PPO practice)
+            self.actor[-1].weight.mul_(0.01)
+            self.actor[-1].bias.zero_()
+
+    def dist(self, obs_n: torch.Tensor) -> torch.distributions.Normal:
+        """The Gaussian over logits for normalized observations [N, obs_dim]."""
+        mu = self.actor(obs_n)
+        return torch.distributions.Normal(mu, self.log_std.exp().expand_as(mu))
+
+    def value(self, obs_n: torch.Tensor) -> torch.Tensor:
+        """V(s, c) [N] for normalized observations."""
+        return self.critic(obs_n).squeeze(-1)
+
+    @torch.no_grad()
+    def act(
+        self, obs: np.ndarray, generator: torch.Generator | None, deterministic: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For raw observations [N, obs_dim]: (w [N, m], logits u [N, m], log-prob [N], value [N]).
+
+        ``deterministic`` uses the mean logits (evaluation, tracing, tuning)."""
+        x = self.normalizer(torch.as_tensor(obs, dtype=torch.float32))
+        d = self.dist(x)
+        u = d.mean if deterministic else d.mean + d.stddev * torch.randn(d.mean.shape, generator=generator)
+        return (
+            softmax_weights(u).numpy(),
+            u.numpy(),
+            d.log_prob(u).sum(-1).numpy(),
+            self.value(x).numpy(),
+        )

@@ -1,0 +1,123 @@
+"""The ``jax-mjx`` backend plugin: MuJoCo MJX physics and MOPPO in JAX, on every local device.
+
+It is interchangeable with ``torch-cpu``: the same config, CLI, run directory and checkpoint
+format (safetensors + JSON, the torch-cpu array names for the actor, critic and normalizer), so a
+jax-mjx run's policy loads through either backend's inference path. See docs/backends.md.
+
+JAX, MJX, flax and optax come from the optional extra ``amorctl[jax]``; this module imports none
+of them, so ``amorctl plugins`` lists the backend without the extra, and using it without the
+extra raises one :class:`AmorError` naming the extra.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from typing import Any
+
+from amorctl.core.config import TrainConfig
+from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import BackendSpec
+from amorctl.core.vecenv import VectorEnv
+from amorctl.registry import hookimpl
+
+NAME = "jax-mjx"
+#: import name -> distribution of the packages the ``jax`` extra installs
+EXTRA_MODULES = {"jax": "jax", "mujoco.mjx": "mujoco-mjx", "flax": "flax", "optax": "optax"}
+INSTALL_HINT = 'pip install "amorctl[jax]"'
+
+
+def missing_modules() -> list[str]:
+    """Distributions of the ``jax`` extra that are not importable (empty when it is installed)."""
+    missing = []
+    for module, dist in EXTRA_MODULES.items():
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except ModuleNotFoundError:  # the parent package (e.g. mujoco) is absent
+            found = False
+        if not found:
+            missing.append(dist)
+    return missing
+
+
+def require_extra() -> None:
+    """Raise AmorError naming the ``jax`` extra when any of its packages is missing."""
+    missing = missing_modules()
+    if missing:
+        raise AmorError(
+            f"backend {NAME!r} needs the optional extra 'jax' ({', '.join(missing)} not installed): "
+            f"{INSTALL_HINT}"
+        )
+
+
+class JaxMjxBackend:
+    """Env and trainer factory of the jax-mjx backend (checks for the extra when made)."""
+
+    name = NAME
+
+    def __init__(self) -> None:
+        require_extra()
+
+    def make_env(
+        self,
+        *,
+        character: str,
+        dataset: str | Path | None = None,
+        objective_set: str = "tracking7",
+        num_envs: int = 256,
+        episode_seconds: float = 10.0,
+        seed: int = 0,
+        **options: Any,
+    ) -> VectorEnv:
+        """The MJX motion-tracking env (:class:`~.env.MjxTrackingEnv`) for ``character``."""
+        from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
+        from amorctl.registry import get_registry
+
+        spec = get_registry().character(character)
+        library = _load_library(character, dataset)
+        steps = max(1, round(episode_seconds * spec.control_hz))
+        return MjxTrackingEnv(
+            spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
+        )
+
+    def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:
+        """A :class:`~.trainer.JaxMOPPOTrainer` for ``env`` (data-parallel over local devices)."""
+        from amorctl.plugins.backends.jax_mjx.trainer import JaxMOPPOTrainer
+
+        if config.ppo.precision == "bf16":
+            raise AmorError('[ppo] precision = "bf16" is torch-cpu only; jax-mjx trains in fp32')
+        return JaxMOPPOTrainer(env, config.network, config.ppo, seed=config.run.seed)
+
+    def load_policy(self, trainer_state: Snapshot, config: TrainConfig) -> Any:
+        """A :class:`~.policy.JaxPolicy` from a checkpoint's trainer state."""
+        from amorctl.plugins.backends.jax_mjx.policy import JaxPolicy
+
+        return JaxPolicy(trainer_state, config.network)
+
+
+def _load_library(character: str, dataset: str | Path | None) -> Any:
+    """The motion library to track: ``dataset`` if given, else the character's built-in clips
+    (preprocessed into the user cache on first use), as torch-cpu loads it."""
+    from amorctl.motion.cache import default_dataset
+    from amorctl.motion.dataset import load_dataset
+
+    path = Path(dataset) if dataset else default_dataset(character)
+    if not path.is_file():
+        raise AmorError(f"{path}: motion dataset not found")
+    library = load_dataset(path)
+    if library.character != character:
+        raise AmorError(f"{path}: dataset is for character {library.character!r}, not {character!r}")
+    return library
+
+
+@hookimpl
+def amorctl_register_backends(register: Any) -> None:
+    """Register ``jax-mjx`` (whether or not the extra is installed: using it then names the extra)."""
+    register(
+        BackendSpec(
+            name=NAME,
+            description=f"MuJoCo MJX physics + JAX MOPPO, sharded over devices (extra: {INSTALL_HINT})",
+            make=JaxMjxBackend,
+        )
+    )

@@ -1,0 +1,386 @@
+"""MOPPO in JAX: the jax-mjx :class:`~amorctl.core.contracts.Trainer`.
+
+One iteration is torch-cpu's (``torch_cpu/moppo.py``): rollout, GAE per objective, minibatch
+updates, then the normalizer folds in the rollout's observations. Two rollout paths share one
+jitted learning step (:func:`_learn`: GAE, ``lax.scan`` over epochs × minibatches, the
+normalizer's batch moments, the metrics' reductions):
+
+- **fused** — for :class:`~.env.MjxTrackingEnv`: the whole rollout (policy, MJX physics, rewards,
+  auto-reset) is one ``lax.scan`` inside ``jit``; nothing but metrics leaves the device.
+- **host** — for any other :class:`~amorctl.core.vecenv.VectorEnv` (the numpy toy envs, gym): the
+  jitted policy acts, the env steps on the host, as torch-cpu does.
+
+Devices: the env axis N of the env state and of the batch is sharded over a 1-D mesh of all
+local devices (:mod:`.devices`); parameters and optimizer state are replicated. ``jit`` then
+partitions the same program across the devices (GSPMD): per-env work runs where the env lives,
+gradient and statistics reductions become all-reduces, so the update equals the one-device
+update on the same batch up to float reduction order (tested with 2 CPU devices).
+
+Checkpoints use torch-cpu's array names for the networks and the normalizer (so its inference
+path loads them); the optax state, the JAX key, the current observations and episode statistics
+are saved too, so ``--resume`` continues exactly.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from amorctl.core.config import NetworkConfig, PPOConfig
+from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import VectorEnv
+from amorctl.plugins.backends.jax_mjx import devices
+from amorctl.plugins.backends.jax_mjx import moppo_math as mm
+from amorctl.plugins.backends.jax_mjx.networks import (
+    HostNormalizer,
+    Networks,
+    Params,
+    arrays_to_params,
+    normalize,
+    params_to_arrays,
+)
+
+EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
+EPISODE_STATS = (
+    "ep_return",
+    "ep_scalar",
+    "ep_length",
+    "recent_return",
+    "recent_scalar",
+    "recent_length",
+    "recent_survived",
+)
+
+
+# ---------------------------------------------------------------------------- jitted pieces
+def policy_step(
+    nets: Networks, clip: float, params: Params, norm: Any, obs: jax.Array, key: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """Sample actions for raw obs [N, D]: (action [N, A], mean [N, A], value [N, m], log-prob [N])."""
+    x = normalize(obs, norm, clip)
+    mean, value = nets.mean(params, x), nets.values(params, x)
+    log_std = params["actor"]["log_std"]
+    action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
+    return action, mean, value, mm.gaussian_log_prob(action, mean, log_std)
+
+
+def _learn(
+    nets: Networks,
+    optimizer: Any,
+    cfg: mm.LossConfig,
+    state: mm.TrainState,
+    norm: Any,
+    batch: mm.Batch,
+    key: jax.Array,
+) -> tuple[mm.TrainState, dict[str, jax.Array]]:
+    """GAE, all minibatch updates, and the reductions the metrics and the normalizer need."""
+    T, N, m = batch.rewards.shape
+    adv, ret = mm.gae(
+        batch.rewards, batch.values.reshape(T, N, m), batch.next_values, batch.terminated,
+        batch.truncated, cfg.gamma, cfg.gae_lambda,
+    )  # fmt: skip
+    adv, ret = adv.reshape(T * N, m), ret.reshape(T * N, m)
+    keys = jax.random.split(key, cfg.num_epochs)
+    perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(keys)
+    state, stats = mm.update(state, nets, optimizer, norm, batch, adv, ret, perms, cfg)
+    var = jnp.var(ret, axis=0)
+    stats["explained_variance"] = jnp.where(var > 0, 1 - jnp.var(ret - batch.values, axis=0) / var, jnp.nan)
+    stats["mean_reward"] = jnp.mean(batch.rewards, axis=(0, 1))
+    stats["obs_mean"] = jnp.mean(batch.obs, axis=0)
+    stats["obs_var"] = jnp.var(batch.obs, axis=0)
+    return state, stats
+
+
+class JaxMOPPOTrainer:
+    """MOPPO for any ``VectorEnv`` (fused on the device for the MJX env); implements
+    :class:`~amorctl.core.contracts.Trainer`."""
+
+    def __init__(self, env: VectorEnv, network: NetworkConfig, ppo: PPOConfig, seed: int) -> None:
+        self.env = env
+        self.cfg = ppo
+        self.names = tuple(env.reward_space.names)
+        self.num_objectives = m = len(self.names)
+        self.iteration_count = 0
+        self.env_steps = 0
+        self.mesh = devices.local_mesh()
+        n = env.num_envs
+        if n % self.mesh.size:
+            raise AmorError(
+                f"[env] num_envs = {n} must be a multiple of the {self.mesh.size} local JAX devices"
+            )
+        self.nets = Networks(
+            env.obs_dim, env.action_dim, m, network.actor_hidden, network.critic_hidden, network.init_std
+        )
+        self.loss_cfg = mm.LossConfig.from_config(ppo, network.obs_clip)
+        self.optimizer = mm.make_optimizer(ppo.learning_rate)
+        key, init_key = jax.random.split(jax.random.PRNGKey(seed))
+        params = self.nets.init(init_key)
+        self.state = devices.replicate(self.mesh, mm.TrainState(params, self.optimizer.init(params)))
+        self.key = key  # [2] uint32, the raw key format (saved as is)
+        self.normalizer = HostNormalizer(env.obs_dim, clip=network.obs_clip)
+        clip = network.obs_clip
+        self._policy = jax.jit(partial(policy_step, self.nets, clip))
+        self._mean = jax.jit(lambda p, nm, o: self.nets.mean(p, normalize(o, nm, clip)))
+        self._values = jax.jit(lambda p, nm, o: self.nets.values(p, normalize(o, nm, clip)))
+        self._learn = jax.jit(partial(_learn, self.nets, self.optimizer, self.loss_cfg))
+        # a class attribute, so a wrapper (FixedWeights) that forwards attributes takes the host path
+        self.fused = callable(getattr(type(env), "fused_rollout", None))
+        if self.fused:
+            self._rollout = env.fused_rollout(self.nets, clip, ppo.num_steps, self.mesh)  # type: ignore[attr-defined]
+
+        obs, _ = env.reset(seed=seed)
+        self.obs = np.asarray(obs, dtype=np.float32)  # [N, D]
+        if ppo.normalize_obs:
+            self.normalizer.update(self.obs)
+        self.ep_return = np.zeros((n, m))
+        self.ep_scalar = np.zeros(n)
+        self.ep_length = np.zeros(n, dtype=np.int64)
+        self.recent_return = np.full((EPISODE_WINDOW, m), np.nan)
+        self.recent_scalar = np.full(EPISODE_WINDOW, np.nan)
+        self.recent_length = np.full(EPISODE_WINDOW, np.nan)
+        self.recent_survived = np.full(EPISODE_WINDOW, np.nan)
+        self.recent_ptr = 0
+        self.episodes = 0
+
+    # ------------------------------------------------------------------ small API
+    @property
+    def learning_rate(self) -> float:
+        return float(mm.learning_rate(self.state.opt_state))
+
+    @property
+    def params(self) -> Params:
+        return self.state.params
+
+    def _next_key(self) -> jax.Array:
+        self.key, sub = jax.random.split(self.key)
+        return sub
+
+    def reset_env(self, seed: int) -> None:
+        """Restart every env episode with ``seed``; running episode sums start from zero."""
+        obs, _ = self.env.reset(seed=seed)
+        self.obs = np.asarray(obs, dtype=np.float32)
+        self.ep_return[:] = 0.0
+        self.ep_scalar[:] = 0.0
+        self.ep_length[:] = 0
+
+    def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        """Actions [N, A] for raw observations [N, D] (the Gaussian mean when deterministic)."""
+        norm = self.normalizer.device_stats()
+        if deterministic:
+            return np.asarray(self._mean(self.params, norm, jnp.asarray(obs, jnp.float32)))
+        action, *_ = self._policy(self.params, norm, jnp.asarray(obs, jnp.float32), self._next_key())
+        return np.asarray(action)
+
+    def values(self, obs: np.ndarray) -> np.ndarray:
+        """Critic values [N, m] for raw observations [N, D]."""
+        return np.asarray(self._values(self.params, self.normalizer.device_stats(), jnp.asarray(obs)))
+
+    # ------------------------------------------------------------------ rollouts
+    def _host_rollout(self, norm: Any) -> tuple[mm.Batch, dict[str, float]]:
+        """T host env steps with the jitted policy (torch-cpu's ``collect_rollout``)."""
+        T, N, m = self.cfg.num_steps, self.env.num_envs, self.num_objectives
+        bufs: dict[str, list[Any]] = {k: [] for k in ("obs", "act", "mean", "val", "logp", "next", "rew", "w")}
+        term_buf = np.zeros((T, N), bool)
+        trunc_buf = np.zeros((T, N), bool)
+        t_env = t_policy = 0.0
+        params = self.params
+        for t in range(T):
+            t0 = time.perf_counter()
+            weights = np.asarray(self.env.weights, dtype=np.float32)
+            obs = jnp.asarray(self.obs)
+            action, mean, value, logp = self._policy(params, norm, obs, self._next_key())
+            action_np = np.asarray(action)
+            t1 = time.perf_counter()
+            next_obs, rewards, terminated, truncated, info = self.env.step(action_np)
+            t2 = time.perf_counter()
+            term_buf[t] = np.asarray(terminated, bool)
+            trunc_buf[t] = np.asarray(truncated, bool) & ~term_buf[t]
+            next_val = np.zeros((N, m), np.float32)
+            if trunc_buf[t].any():  # bootstrap time-limited episodes from V(final_obs)
+                final = jnp.asarray(np.asarray(info["final_obs"], np.float32))
+                next_val[trunc_buf[t]] = np.asarray(self._values(params, norm, final))[trunc_buf[t]]
+            rewards = np.asarray(rewards, np.float32)
+            for name, value_t in (
+                ("obs", obs), ("act", action), ("mean", mean), ("val", value), ("logp", logp),
+                ("next", next_val), ("rew", rewards), ("w", weights),
+            ):  # fmt: skip
+                bufs[name].append(value_t)
+            self._track_episodes(rewards, weights, term_buf[t], trunc_buf[t])
+            self.obs = np.asarray(next_obs, dtype=np.float32)
+            t_env += t2 - t1
+            t_policy += time.perf_counter() - t2 + t1 - t0
+        t0 = time.perf_counter()
+        last_values = self._values(params, norm, jnp.asarray(self.obs))
+        values = jnp.stack(bufs["val"])  # [T, N, m]
+        following = jnp.concatenate([values[1:], last_values[None]], axis=0)
+        trunc = jnp.asarray(trunc_buf)
+        next_values = jnp.where(trunc[..., None], jnp.asarray(np.stack(bufs["next"])), following)
+        t_policy += time.perf_counter() - t0
+        D, A = self.env.obs_dim, self.env.action_dim
+        batch = mm.Batch(
+            obs=jnp.stack(bufs["obs"]).reshape(T * N, D),
+            actions=jnp.stack(bufs["act"]).reshape(T * N, A),
+            log_probs=jnp.stack(bufs["logp"]).reshape(T * N),
+            means=jnp.stack(bufs["mean"]).reshape(T * N, A),
+            values=values.reshape(T * N, m),
+            weights=jnp.asarray(np.stack(bufs["w"])).reshape(T * N, m),
+            rewards=jnp.asarray(np.stack(bufs["rew"])),
+            next_values=next_values,
+            terminated=jnp.asarray(term_buf),
+            truncated=trunc,
+            old_log_std=params["actor"]["log_std"],
+        )
+        return batch, {"env": t_env, "policy": t_policy}
+
+    def _fused_rollout(self, norm: Any) -> tuple[mm.Batch, dict[str, float]]:
+        """The env's jitted rollout; episode statistics from its rewards and episode ends."""
+        t0 = time.perf_counter()
+        batch, obs = self.env.run_rollout(self._rollout, self.params, norm, self._next_key())  # type: ignore[attr-defined]
+        rewards = np.asarray(batch.rewards, np.float64)  # blocks until the rollout is done
+        weights = np.asarray(batch.weights, np.float64).reshape(rewards.shape)
+        terminated, truncated = np.asarray(batch.terminated), np.asarray(batch.truncated)
+        elapsed = time.perf_counter() - t0
+        for t in range(rewards.shape[0]):
+            self._track_episodes(rewards[t], weights[t], terminated[t], truncated[t])
+        self.obs = np.asarray(obs, np.float32)
+        return batch, {"env": elapsed, "policy": 0.0}
+
+    def _track_episodes(
+        self, rewards: np.ndarray, weights: np.ndarray, terminated: np.ndarray, truncated: np.ndarray
+    ) -> None:
+        """Accumulate undiscounted per-objective episode returns; log the episodes that ended."""
+        rewards = np.asarray(rewards, np.float64)
+        self.ep_return += rewards
+        self.ep_scalar += (rewards * np.asarray(weights, np.float64)).sum(-1)
+        self.ep_length += 1
+        ended = terminated | truncated
+        k = int(ended.sum())
+        if k == 0:
+            return
+        slots = (self.recent_ptr + np.arange(k)) % EPISODE_WINDOW
+        self.recent_return[slots] = self.ep_return[ended]
+        self.recent_scalar[slots] = self.ep_scalar[ended]
+        self.recent_length[slots] = self.ep_length[ended]
+        self.recent_survived[slots] = (~terminated[ended]).astype(np.float64)
+        self.recent_ptr = int((self.recent_ptr + k) % EPISODE_WINDOW)
+        self.episodes += k
+        self.ep_return[ended] = 0.0
+        self.ep_scalar[ended] = 0.0
+        self.ep_length[ended] = 0
+
+    # ------------------------------------------------------------------ one iteration
+    def iteration(self) -> dict[str, float]:
+        """Rollout, returns and update (jitted), normalizer; returns this iteration's metrics."""
+        start = time.perf_counter()
+        norm = self.normalizer.device_stats()
+        batch, times = self._fused_rollout(norm) if self.fused else self._host_rollout(norm)
+        batch = devices.shard_batch(self.mesh, batch)
+        t0 = time.perf_counter()
+        self.state, stats = self._learn(self.state, norm, batch, self._next_key())
+        stats = jax.device_get(stats)
+        times["update"] = time.perf_counter() - t0
+        if self.cfg.normalize_obs:
+            self.normalizer.update_moments(batch.obs.shape[0], stats["obs_mean"], stats["obs_var"])
+        self.env_steps += batch.obs.shape[0]
+        self.iteration_count += 1
+        elapsed = time.perf_counter() - start
+        return self._metrics(batch.obs.shape[0], stats, times, elapsed)
+
+    def _metrics(
+        self, size: int, stats: dict[str, np.ndarray], times: dict[str, float], elapsed: float
+    ) -> dict[str, float]:
+        metrics: dict[str, float] = {
+            "iteration": float(self.iteration_count),
+            "env_steps": float(self.env_steps),
+        }
+        metrics["env_steps_per_s"] = size / max(elapsed, 1e-9)
+        metrics["time/iteration_s"] = elapsed
+        metrics["time/env_frac"] = times["env"] / elapsed
+        metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
+        metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
+        for key in ("loss/total", "loss/policy", "loss/value", "loss/entropy", "kl", "approx_kl", "clip_fraction"):
+            metrics[key] = float(stats[key])
+        metrics["learning_rate"] = self.learning_rate
+        metrics["action_std"] = float(np.exp(np.asarray(self.params["actor"]["log_std"])).mean())
+        filled = ~np.isnan(self.recent_length)
+        has = bool(filled.any())
+        for i, name in enumerate(self.names):
+            metrics[f"return/{name}"] = float(self.recent_return[filled, i].mean()) if has else float("nan")
+            metrics[f"reward/{name}"] = float(stats["mean_reward"][i])
+            metrics[f"explained_variance/{name}"] = float(stats["explained_variance"][i])
+        metrics["return/scalarized"] = float(self.recent_scalar[filled].mean()) if has else float("nan")
+        metrics["episode/length"] = float(self.recent_length[filled].mean()) if has else float("nan")
+        metrics["episode/survival"] = float(self.recent_survived[filled].mean()) if has else float("nan")
+        metrics["episodes"] = float(self.episodes)
+        return metrics
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> Snapshot:
+        """Weights and normalizer (torch-cpu's names), optax state, JAX key, obs, episode stats."""
+        arrays = params_to_arrays(self.params)
+        arrays.update(self.normalizer.to_arrays())
+        leaves = jax.tree_util.tree_leaves(jax.device_get(self.state.opt_state))
+        for i, leaf in enumerate(leaves):
+            arrays[f"optimizer.{i}"] = np.asarray(leaf).copy()
+        arrays["rng.jax"] = np.asarray(jax.device_get(self.key)).copy()
+        arrays["obs"] = self.obs.copy()
+        for key in EPISODE_STATS:
+            arrays[f"episodes.{key}"] = np.asarray(getattr(self, key)).copy()
+        meta: dict[str, Any] = {
+            "iteration": self.iteration_count,
+            "env_steps": self.env_steps,
+            "learning_rate": self.learning_rate,
+            "optimizer": "optax.adam (inject_hyperparams)",
+            "optimizer_leaves": len(leaves),
+            "recent_ptr": self.recent_ptr,
+            "episodes": self.episodes,
+            "obs_dim": self.env.obs_dim,
+            "action_dim": self.env.action_dim,
+            "objectives": list(self.names),
+        }
+        layout = getattr(self.env, "obs_layout", None)
+        if isinstance(layout, dict):
+            meta["observation_layout"] = {k: [s.start, s.stop] for k, s in layout.items()}
+        return Snapshot(arrays, meta)
+
+    def load_state_dict(self, state: Snapshot) -> None:
+        """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape, objective
+        set or backend."""
+        meta, arrays = state.meta, state.arrays
+        expect = {"obs_dim": self.env.obs_dim, "action_dim": self.env.action_dim, "objectives": list(self.names)}
+        for key, value in expect.items():
+            if meta.get(key) != value:
+                raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+        if "rng.jax" not in arrays:
+            raise AmorError("checkpoint was not written by the jax-mjx backend (no rng.jax array)")
+        params = arrays_to_params(arrays, self.params)
+        try:
+            self.normalizer.load_arrays(arrays)
+            treedef = jax.tree_util.tree_structure(self.state.opt_state)
+            current = jax.tree_util.tree_leaves(self.state.opt_state)
+            leaves = []
+            for i, like in enumerate(current):
+                value, shape = np.asarray(arrays[f"optimizer.{i}"]), np.shape(like)
+                if value.size != int(np.prod(shape)):  # safetensors stores 0-d arrays as [1]
+                    raise AmorError(f"checkpoint optimizer.{i} has shape {value.shape}, expected {shape}")
+                leaves.append(jnp.asarray(value.reshape(shape), dtype=jnp.asarray(like).dtype))
+            if int(meta.get("optimizer_leaves", -1)) != len(current):
+                raise AmorError("checkpoint optimizer state does not fit this network configuration")
+            opt_state = jax.tree_util.tree_unflatten(treedef, leaves)
+            self.key = jnp.asarray(arrays["rng.jax"])
+            self.obs = np.asarray(arrays["obs"], np.float32).copy()
+            for key in EPISODE_STATS:
+                setattr(self, key, np.asarray(arrays[f"episodes.{key}"]).copy())
+        except KeyError as exc:
+            raise AmorError(f"checkpoint does not fit this network configuration: missing {exc}") from None
+        self.state = devices.replicate(self.mesh, mm.TrainState(params, opt_state))
+        self.iteration_count = int(meta["iteration"])
+        self.env_steps = int(meta["env_steps"])
+        self.recent_ptr = int(meta["recent_ptr"])
+        self.episodes = int(meta["episodes"])

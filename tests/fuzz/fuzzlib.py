@@ -1,0 +1,245 @@
+"""The fuzz suite's machinery: mutations of a valid seed file, the CLI run in-process, the verdict.
+
+Every variant of a seed file goes through the real entry point (:func:`amorctl.cli.main.main`)
+and must end in one of two ways:
+
+- exit 0, nothing on stderr, and finite JSON on stdout (no NaN/inf anywhere), or
+- exit 2 with exactly one ``error: ...`` line on stderr that names the file (or the flag),
+  and no output file left behind.
+
+Never exit 1 (an unexpected exception), never a traceback, never a warning line.
+
+Mutations are drawn by hypothesis: byte-level (truncate, flip a byte, delete / insert /
+duplicate a span) on any file, and structured ones on parsed JSON / TOML documents (delete a key,
+replace a value with NaN, inf, a huge number, a wrong type, or a deeply nested list).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from hypothesis import HealthCheck, Phase, settings
+from hypothesis import strategies as st
+
+from amorctl.cli.main import main
+
+#: Variants per file class: the default (CI) run and the ``-m slow`` run.
+CI_EXAMPLES = int(os.environ.get("AMORCTL_FUZZ_EXAMPLES", "30"))
+SLOW_EXAMPLES = int(os.environ.get("AMORCTL_FUZZ_SLOW_EXAMPLES", "400"))
+#: Placeholder replaced by a deeply nested list after serialization (serializers recurse).
+NEST = "__amorctl_fuzz_nest__"
+NEST_DEPTHS = (50, 3000, 100_000)
+
+
+def fuzz_settings(examples: int) -> settings:
+    """Deterministic for the CI count (same variants every run), random for the slow run."""
+    return settings(
+        max_examples=examples,
+        deadline=None,
+        database=None,
+        derandomize=examples <= CI_EXAMPLES,
+        phases=(Phase.explicit, Phase.generate, Phase.shrink),
+        suppress_health_check=list(HealthCheck),
+    )
+
+
+# --- values a corrupt file may hold -------------------------------------------------------------
+BAD_NUMBERS: tuple[Any, ...] = (
+    math.nan,
+    math.inf,
+    -math.inf,
+    1e308,
+    -1e308,
+    1e300,
+    2**63 - 1,
+    -(2**63),
+    10**9,
+    -1,
+    0,
+    0.0,
+    -0.0,
+    5e-324,
+    0.5,
+)
+BAD_OTHERS: tuple[Any, ...] = ("", "x", "1", "nan", True, False, [], {}, [1, 2, 3], {"a": 1}, NEST)
+BAD_STRINGS: tuple[str, ...] = (
+    "",
+    "0",
+    "-1",
+    "nan",
+    "inf",
+    "1e308",
+    "x",
+    "[",
+    "{}",
+    "[]",
+    '["a", "a"]',
+    '"a"',
+    "99",
+    "1.5",
+    "[" * 5000 + "]" * 5000,
+)
+
+
+def bad_values(allow_null: bool) -> st.SearchStrategy[Any]:
+    values = BAD_NUMBERS + BAD_OTHERS + ((None,) if allow_null else ())
+    return st.sampled_from(values)
+
+
+# --- byte-level mutations -----------------------------------------------------------------------
+@st.composite
+def byte_mutation(draw: st.DrawFn, data: bytes) -> bytes:
+    """One of: truncate, flip a byte, delete a span, insert random bytes, duplicate a span."""
+    n = len(data)
+    kind = draw(st.sampled_from(("truncate", "flip", "flip", "delete", "insert", "duplicate")))
+    i = draw(st.integers(0, max(n - 1, 0)))
+    if kind == "truncate":
+        return data[:i]
+    if kind == "flip":
+        mask = draw(st.integers(1, 255))
+        return data[:i] + bytes([data[i] ^ mask]) + data[i + 1 :] if n else data
+    j = min(n, i + draw(st.integers(1, 64)))
+    if kind == "delete":
+        return data[:i] + data[j:]
+    if kind == "insert":
+        return data[:i] + draw(st.binary(min_size=1, max_size=32)) + data[i:]
+    return data[:j] + data[i:j] + data[j:]
+
+
+# --- structured mutations -----------------------------------------------------------------------
+Path_ = tuple[Any, ...]
+
+
+def node_paths(doc: Any, prefix: Path_ = (), limit: int = 4000) -> list[Path_]:
+    """Paths (tuples of keys / indices) to every node below the root (long lists sampled)."""
+    out: list[Path_] = []
+    if isinstance(doc, dict):
+        items: list[tuple[Any, Any]] = list(doc.items())
+    elif isinstance(doc, list):
+        idx = sorted({0, 1, len(doc) // 2, len(doc) - 2, len(doc) - 1} & set(range(len(doc))))
+        items = [(i, doc[i]) for i in idx]
+    else:
+        return out
+    for key, value in items:
+        out.append((*prefix, key))
+        if len(out) < limit:
+            out.extend(node_paths(value, (*prefix, key), limit - len(out)))
+    return out
+
+
+@st.composite
+def structured_mutation(draw: st.DrawFn, doc: Any, allow_null: bool = True) -> tuple[Any, str]:
+    """(a mutated deep copy of ``doc``, a description): a key deleted or a value replaced."""
+    doc = json.loads(json.dumps(doc))
+    paths = node_paths(doc)
+    path = draw(st.sampled_from(paths))
+    parent = doc
+    for key in path[:-1]:
+        parent = parent[key]
+    last = path[-1]
+    if draw(st.booleans()) and isinstance(parent, dict):
+        del parent[last]
+        return doc, f"delete {path}"
+    value = draw(bad_values(allow_null))
+    parent[last] = value
+    return doc, f"{path} = {value!r}"[:200]
+
+
+def dumps_json(doc: Any, depth: int) -> str:
+    text = json.dumps(doc, allow_nan=True)
+    return text.replace(json.dumps(NEST), "[" * depth + "]" * depth)
+
+
+def dumps_toml(doc: Any, depth: int) -> str | None:
+    """TOML text of ``doc`` (None when TOML cannot hold it: a null)."""
+    import tomlkit
+
+    try:
+        text = tomlkit.dumps(doc)
+    except (TypeError, ValueError, tomlkit.exceptions.TOMLKitError):
+        return None
+    return text.replace(f'"{NEST}"', "[" * depth + "]" * depth)
+
+
+# --- running the CLI ----------------------------------------------------------------------------
+def run_cli(args: list[str]) -> tuple[int, str, str]:
+    """``amorctl ARGS`` in-process: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+@contextlib.contextmanager
+def scratch() -> Iterator[Path]:
+    """A fresh directory per variant (hypothesis reuses one test call for many variants)."""
+    path = Path(tempfile.mkdtemp(prefix="amorctl-fuzz-"))
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def _reject_constant(name: str) -> float:
+    raise AssertionError(f"non-finite number {name} in JSON output")
+
+
+def _check_finite(value: Any, where: str = "$") -> None:
+    if isinstance(value, float):
+        assert math.isfinite(value), f"{where} = {value}"
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(v, f"{where}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_finite(v, f"{where}[{i}]")
+
+
+def files_under(directory: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()
+    }
+
+
+def check_outcome(
+    result: tuple[int, str, str],
+    names: tuple[str, ...],
+    *,
+    left_out: tuple[Path, ...] = (),
+    what: str = "",
+    on_success: Callable[[Any], None] | None = None,
+) -> str:
+    """Assert the contract on one variant; returns "ok" or the error line.
+
+    Args:
+        result: (exit code, stdout, stderr) of :func:`run_cli` (with ``--json``).
+        names: the error line must contain one of these (the file's path, or the flag).
+        left_out: paths that must not exist after a refusal (output files, run directories).
+        what: the mutation, for assertion messages.
+        on_success: further checks of the parsed JSON output of an accepted variant.
+    """
+    code, out, err = result
+    assert "Traceback" not in err, f"{what}: traceback\n{err}"
+    assert code in (0, 2), f"{what}: exit {code}\n{err}"
+    if code == 2:
+        lines = err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), f"{what}: stderr is not one error line:\n{err}"
+        assert any(n in lines[0] for n in names), f"{what}: error does not name {names}: {lines[0]}"
+        for path in left_out:
+            assert not path.exists(), f"{what}: refused, but {path} was left behind"
+        return lines[0]
+    assert err == "", f"{what}: accepted but wrote to stderr:\n{err}"
+    data = json.loads(out, parse_constant=_reject_constant)
+    _check_finite(data)
+    if on_success is not None:
+        on_success(data)
+    return "ok"

@@ -1,0 +1,436 @@
+"""`amorctl deploy`: ONNX export with w as an input (parity, metadata, bundle), the torch-free
+sim2sim runtime (reproduces `tune`, randomization, watchdog), `deploy check`, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from amorctl.cli.main import main
+from amorctl.core.errors import AmorError
+from amorctl.deploy.bundle import METADATA_KEYS, ONNX_FILE, compiled_model_hash, read_bundle
+from amorctl.deploy.export import export_bundle, parity_observations, split_observation
+from amorctl.deploy.randomize import load_randomization
+from amorctl.deploy.runtime import Runtime
+from amorctl.registry import reset_registry
+
+torch.set_num_threads(1)
+TRACKING7 = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def deploy_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-iteration biped20 residual-action run on two 1 s synthetic clips, 2.5 s episodes (so
+    `tune` rolls out 2 s without truncation)."""
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.motion.dataset import write_dataset
+    from amorctl.registry import get_registry
+    from amorctl.train.loop import train_run
+
+    root = tmp_path_factory.mktemp("deploy-run")
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
+    clips = tuple(
+        dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
+    )
+    write_dataset(root / "ds.mcap", dataclasses.replace(lib, clips=clips))
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"kind": "tracking", "character": "biped20", "dataset": str(root / "ds.mcap"),
+                    "num_envs": 4, "episode_seconds": 2.5, "action_mode": "residual"},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+        },
+        "deploy_run fixture",
+    )  # fmt: skip
+    train_run(config, root / "run")
+    reset_registry()
+    return root / "run"
+
+
+@pytest.fixture(scope="module")
+def bundle_dir(deploy_run: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("bundle") / "b"
+    export_bundle(deploy_run, out)
+    return out
+
+
+def _cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(argv)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# ---------------------------------------------------------------------------- export
+
+
+def test_bundle_has_named_inputs_metadata_in_onnx_and_sidecar(bundle_dir: Path, deploy_run: Path) -> None:
+    import onnx
+
+    from amorctl.registry import get_registry
+
+    meta = json.loads((bundle_dir / "deploy.json").read_text())
+    assert set(meta) == set(METADATA_KEYS)
+    model = onnx.load(str(bundle_dir / ONNX_FILE))
+    props = {p.key: json.loads(p.value) for p in model.metadata_props}
+    assert props == meta  # same content, JSON-encoded values, full precision
+    assert [i.name for i in model.graph.input] == ["obs", "ref_frame", "latent", "w"]
+    assert [o.name for o in model.graph.output] == ["pd_target", "action"]
+    assert model.opset_import[0].version == meta["opset"] == 17
+    ch = get_registry().character("biped20")
+    assert meta["joint_names"] == list(ch.joint_names())
+    assert meta["objectives"] == list(TRACKING7)
+    assert meta["model_sha256"] == compiled_model_hash(ch)
+    assert meta["pd_gains"]["kp"] == [j.kp for j in ch.joints]
+    assert meta["actuator_model"]["kind"] == "servo" and meta["actuator_model"]["latency_steps"] == 2
+    assert meta["control_hz"] == 50 and meta["physics_hz"] == 250 and meta["iteration"] == 1
+    assert meta["action"]["mode"] == "residual"
+    for spec in meta["inputs"].values():  # element names cover every column
+        assert len(spec["elements"]) == spec["shape"][1]
+    assert meta["inputs"]["w"]["elements"] == [f"w/{o}" for o in TRACKING7]
+    assert "obs/proprio/joint_pos/l_knee" not in meta["inputs"]["obs"]["elements"]
+    assert "proprio/joint_pos/l_knee" in meta["inputs"]["obs"]["elements"]
+    with np.load(bundle_dir / "motions.npz", allow_pickle=False) as npz:
+        assert list(npz["clip_names"]) == ["sway_a", "sway_b"]
+        assert npz["frames"].shape[1] == meta["inputs"]["ref_frame"]["shape"][1]
+
+
+def test_onnx_matches_the_torch_policy_and_w_alone_changes_its_output(
+    bundle_dir: Path, deploy_run: Path
+) -> None:
+    from amorctl.train.rundir import RunDir
+
+    b = read_bundle(bundle_dir)
+    policy = RunDir.open(deploy_run).policy()
+    snap = policy.export_arrays()
+    obs = parity_observations(
+        snap.arrays["normalizer/mean"], snap.arrays["normalizer/scale"], 7, 1000, seed=5
+    )
+    groups = {k: [(p, a, c) for p, (a, c) in v["parts"].items()] for k, v in b.meta["inputs"].items()}
+    got = b.evaluate(split_observation(obs, groups))  # a batch of 1008 through the dynamic axis
+    action = policy(obs).astype(np.float64)
+    r0 = b.meta["observation_layout"]["ref_frame"][0] + 13
+    ref = obs[:, r0 : r0 + 20].astype(np.float64)
+    low, high = np.array(b.meta["joint_ranges"]).T
+    assert np.max(np.abs(got["action"] - action)) <= 1e-5
+    assert np.max(np.abs(got["pd_target"] - np.clip(ref + action, low, high))) <= 1e-5
+    assert b.meta["parity"]["max_abs"] <= 1e-5 and b.meta["parity"]["samples"] >= 1000
+
+    feeds = split_observation(obs[:1].repeat(7, axis=0), groups)
+    feeds["w"] = np.eye(7, dtype=np.float32)  # only w differs between the rows
+    out = b.evaluate(feeds)["action"]
+    assert np.ptp(out, axis=0).max() > 1e-4
+
+
+def test_a_trained_toy_policy_flips_its_action_with_w_through_onnx(toy_run: Path, tmp_path: Path) -> None:
+    res = export_bundle(toy_run, tmp_path / "toy")
+    b = read_bundle(tmp_path / "toy")
+    assert list(b.meta["inputs"]) == ["obs", "w"] and list(b.meta["outputs"]) == ["action"]
+    assert b.meta["character"] is None and res.parity_max_abs <= 1e-5
+    obs = np.zeros((2, 3), dtype=np.float32)
+    out = b.evaluate({"obs": obs, "w": np.eye(2, dtype=np.float32)})["action"][:, 0]
+    assert out[0] > 0.3 and out[1] < -0.3  # w = (1, 0): right; w = (0, 1): left
+
+
+# ---------------------------------------------------------------------------- runtime
+
+
+def test_runtime_reproduces_tunes_trajectory_for_two_seconds(
+    bundle_dir: Path, deploy_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from amorctl.outputs.mcap_log import TOPIC_JOINTS, read_rollout_mcap
+
+    w = "up=3,lo=1,feet=1,rbs=1,root=1,vel=1,smooth=2"
+    log = tmp_path / "tune.mcap"
+    code, _, err = _cli(["tune", str(deploy_run), "--motion", "sway_a", "--weights", w, "--seconds", "2",
+                         "--no-stop-on-fall", "--out", str(log)], capsys)  # fmt: skip
+    assert code == 0, err
+    tune_q = np.array([m["position"] for m in read_rollout_mcap(log)[TOPIC_JOINTS]])
+    from amorctl.core.weights import parse_weights
+
+    rt = Runtime(read_bundle(bundle_dir))
+    res = rt.run(parse_weights(w, TRACKING7), motion="sway_a", seconds=2.0, stop_on_fall=False, record=True)
+    q = np.array([r.joint_pos for r in res.records])
+    assert q.shape == tune_q.shape == (100, 20)
+    # at a fall both restart the clip; tune logs the restarted state at that step, the runtime the fallen one
+    fell = [round(e.t / rt.dt) - 1 for e in res.events if e.kind == "fell"]
+    keep = np.setdiff1d(np.arange(100), fell)
+    assert len(keep) >= 95
+    assert np.max(np.abs(q[keep] - tune_q[keep])) < 1e-5  # stated tolerance: 1e-5 rad over 2 s
+
+
+def test_runtime_runs_with_torch_unimportable_and_imports_only_numpy_mujoco_onnxruntime(
+    bundle_dir: Path, tmp_path: Path
+) -> None:
+    shim = tmp_path / "shim"
+    shim.mkdir()
+    (shim / "sitecustomize.py").write_text("import sys\nsys.modules['torch'] = None\n")
+    env = {**os.environ, "PYTHONPATH": str(shim)}
+    log = tmp_path / "run.mcap"
+    cmd = [sys.executable, "-m", "amorctl.cli.deploy", "run", str(bundle_dir), "--motion", "sway_b",
+           "--weights", "up=1,smooth=1", "--seconds", "0.5", "--out", str(log), "--json"]  # fmt: skip
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    assert info["steps"] >= 1 and log.is_file()
+    probe = (
+        "import sys, numpy as np\n"
+        "from amorctl.deploy.bundle import read_bundle\n"
+        "from amorctl.deploy.runtime import Runtime\n"
+        "from amorctl.deploy.check import run_check\n"
+        f"rt = Runtime(read_bundle({str(bundle_dir)!r}))\n"
+        "rt.run(np.full(7, 1 / 7), seconds=0.1)\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules if sys.modules[m] is not None}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = set(eval(proc.stdout.strip().splitlines()[-1]))
+    assert {"numpy", "mujoco", "onnxruntime"} <= loaded
+    banned = {
+        "torch",
+        "pluggy",
+        "scipy",
+        "safetensors",
+        "typer",
+        "rich",
+        "tomlkit",
+        "foxglove",
+        "mcap",
+        "onnx",
+    }
+    assert not loaded & banned
+
+
+def _live_script(rt: Runtime, port: int, sends: dict[int, list[bytes]], clock: list[float]):
+    """A should_stop hook that, at tick k, advances the fake clock and sends ``sends[k]``."""
+    import socket
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tick = {"k": 0}
+
+    def hook() -> bool:
+        k = tick["k"]
+        clock[0] = k * rt.dt
+        for data in sends.get(k, []):
+            sock.sendto(data, ("127.0.0.1", port))
+        tick["k"] += 1
+        return False
+
+    return hook, sock
+
+
+def test_live_weights_over_loopback_validation_counts_and_stale_watchdog(bundle_dir: Path) -> None:
+    from amorctl.deploy.runtime_input import UdpWeights
+
+    rt = Runtime(read_bundle(bundle_dir))
+    clock = [0.0]
+    live = UdpWeights(TRACKING7, np.full(7, 1 / 7), port=0, stale_timeout=0.1, clock=lambda: clock[0])
+    assert live.address[0] == "127.0.0.1"
+    nan = b'{"weights": [NaN, 1, 1, 1, 1, 1, 1]}'
+    sends = {
+        1: [b'{"weights": {"up": 1, "smooth": 3}}'],
+        3: [b"{not json", nan, b'{"weights": {"up": -1}}', b'{"weights": {"jump": 1}}',
+            b'{"weights": [1, 2]}', b'{"weights": {"up": 0}}', b'[1, 2]'],
+        5: [b'{"weights": [1, 1, 1, 1, 1, 1, 2]}'],
+        # then silence: stale after 0.1 s (5 ticks) -> hold; a valid message at tick 20 restores
+        20: [b'{"weights": {"lo": 1}}'],
+    }  # fmt: skip
+    hook, sock = _live_script(rt, live.address[1], sends, clock)
+    try:
+        res = rt.run(live, motion="sway_a", seconds=0.5, stop_on_fall=False, record=True, should_stop=hook)
+    finally:
+        sock.close()
+        live.close()
+    w = np.array([r.weights for r in res.records])
+    held = np.array([r.held for r in res.records])
+    np.testing.assert_allclose(w[0], np.full(7, 1 / 7))
+    np.testing.assert_allclose(w[1], [0.25, 0, 0, 0, 0, 0, 0.75])  # applied at the tick it arrived before
+    np.testing.assert_allclose(w[3], w[1])  # every message of tick 3 rejected: weights unchanged
+    np.testing.assert_allclose(w[5], np.array([1, 1, 1, 1, 1, 1, 2]) / 8)
+    np.testing.assert_allclose(w[20], np.eye(7)[1])
+    stats = res.input
+    assert stats["accepted"] == 3 and stats["rejected"] == 7 and stats["received"] == 10
+    assert stats["rejected_by_reason"] == {"bad_json": 1, "not_finite": 1, "negative": 1, "unknown_name": 1,
+                                           "wrong_count": 1, "all_zero": 1, "bad_shape": 1}  # fmt: skip
+    kinds = [(round(e.t / rt.dt), e.kind) for e in res.events if e.kind in ("stale_input", "input_restored")]
+    assert kinds == [(11, "stale_input"), (20, "input_restored")]
+    assert not held[:11].any() and held[11:20].all() and not held[20:].any()
+    targets = np.array([r.pd_target for r in res.records])
+    assert np.all(targets[11:20] == targets[10])  # the last safe pose is held
+    assert sum(e.kind == "rejected_input" for e in res.events) == 7
+
+
+def test_realtime_deadline_misses_latch_the_hold(bundle_dir: Path) -> None:
+    import time
+
+    rt = Runtime(read_bundle(bundle_dir), realtime=True, max_misses=3)
+    slow = rt.policy
+
+    def late(feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        time.sleep(0.03)  # longer than the 20 ms control period
+        return slow(feeds)
+
+    rt.policy = late
+    res = rt.run(np.full(7, 1 / 7), motion="sway_a", seconds=0.2, record=True)
+    kinds = [e.kind for e in res.events]
+    assert kinds[:4] == ["deadline_miss", "deadline_miss", "deadline_miss", "watchdog_latched"]
+    assert res.held_steps == res.steps == 10 and res.to_dict()["policy_ms_median"] >= 25
+    targets = np.array([r.pd_target for r in res.records])
+    assert np.all(targets == targets[0])  # held from the first tick: the initial pose
+
+
+def test_randomization_is_seeded_validated_and_changes_the_dynamics(bundle_dir: Path, tmp_path: Path) -> None:
+    rand = load_randomization(REPO / "docs/examples/deploy-randomize.toml")
+    b = read_bundle(bundle_dir)
+    w = np.full(7, 1 / 7)
+    nominal = Runtime(b).run(w, seconds=0.6, stop_on_fall=False, record=True)
+    rt = Runtime(b, randomization=rand)
+    a = rt.run(w, seconds=0.6, seed=4, stop_on_fall=False, record=True)
+    again = rt.run(w, seconds=0.6, seed=4, stop_on_fall=False, record=True)
+    other = rt.run(w, seconds=0.6, seed=5, stop_on_fall=False, record=True)
+    qa = np.array([r.qpos for r in a.records])
+    assert np.array_equal(qa, np.array([r.qpos for r in again.records]))
+    assert np.abs(qa - np.array([r.qpos for r in nominal.records])).max() > 1e-3
+    assert a.dynamics != other.dynamics and a.dynamics["latency_steps"] in (0, 1)
+
+    pushy = tmp_path / "push.toml"
+    pushy.write_text(
+        "[push]\nvelocity = [0.3, 0.3]\ninterval = [0.2, 0.2]\n[latency]\nextra_steps = [2, 2]\n"
+    )
+    res = Runtime(b, randomization=load_randomization(pushy)).run(w, seconds=0.5, stop_on_fall=False)
+    assert sum(e.kind == "push" for e in res.events) == 2 and res.dynamics["latency_steps"] == 2
+
+    for text, msg in (
+        ("[gravity]\nscale = [1, 2]\n", "unknown table"),
+        ("[mass]\nweight = [1, 2]\n", "unknown key"),
+        ("[mass]\nscale = [1.2, 0.8]\n", "above high"),
+        ("[mass]\nscale = [-1, 1]\n", ">= 0"),
+        ("[mass]\nscale = 1.0\n", "range"),
+        ("[latency]\nextra_steps = [0, 1.5]\n", "whole control steps"),
+        ("[push]\ninterval = [0, 1]\n", ">= 0.001"),
+        ("[mass\n", "TOML"),
+    ):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text)
+        with pytest.raises(AmorError, match=msg):
+            load_randomization(bad)
+
+
+def test_check_compares_uniform_and_given_weights_on_the_same_episodes(
+    bundle_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rand = str(REPO / "docs/examples/deploy-randomize.toml")
+    argv = ["deploy", "check", str(bundle_dir), "--episodes", "2", "--seconds", "0.4", "--weights",
+            "smooth=4,up=1", "--randomize", rand, "--json"]  # fmt: skip
+    code, out, err = _cli(argv, capsys)
+    assert code == 0, err
+    report = json.loads(out)
+    assert [c["label"] for c in report["conditions"]] == ["uniform", "weights"]
+    for c in report["conditions"]:
+        assert c["episodes"] == 2 and 0.0 <= c["survival"] <= 1.0 and c["joint_mae_deg"] > 0
+    assert [e["motion"] for e in report["per_episode"]] == ["sway_a", "sway_b"]
+    code, out, _ = _cli(argv[:-1], capsys)
+    assert code == 0 and "survival" in out and "uniform" in out
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+def _one_error_line(code: int, err: str) -> str:
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    return lines[0]
+
+
+def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
+    bundle_dir: Path, deploy_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import shutil
+
+    import onnx
+
+    empty_run = tmp_path / "empty_run"
+    empty_run.mkdir()
+    shutil.copy(deploy_run / "config.toml", empty_run / "config.toml")
+    out = tmp_path / "out"
+    line = _one_error_line(*_cli(["deploy", "export", str(empty_run), "--out", str(out)], capsys)[::2])
+    assert "checkpoint" in line and not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+    occupied = tmp_path / "occupied"
+    occupied.mkdir()
+    (occupied / "x").write_text("x")
+    line = _one_error_line(*_cli(["deploy", "export", str(deploy_run), "--out", str(occupied)], capsys)[::2])
+    assert "already exists" in line
+
+    def broken(name: str, damage) -> Path:
+        copy = tmp_path / name
+        shutil.copytree(bundle_dir, copy)
+        damage(copy)
+        return copy
+
+    def other_hash(d: Path) -> None:
+        meta = json.loads((d / "deploy.json").read_text())
+        meta["model_sha256"] = "0" * 64
+        (d / "deploy.json").write_text(json.dumps(meta))
+        model = onnx.load(str(d / ONNX_FILE))
+        for p in model.metadata_props:
+            if p.key == "model_sha256":
+                p.value = json.dumps("0" * 64)
+        onnx.save(model, str(d / ONNX_FILE))
+
+    def cut_onnx(d: Path) -> None:
+        data = (d / ONNX_FILE).read_bytes()
+        (d / ONNX_FILE).write_bytes(data[: len(data) // 3])
+
+    def bad_json(d: Path) -> None:
+        (d / "deploy.json").write_text('{"format": "amorctl-deploy/1", ')
+
+    def edited_json(d: Path) -> None:
+        meta = json.loads((d / "deploy.json").read_text())
+        meta["control_hz"] = 100
+        (d / "deploy.json").write_text(json.dumps(meta))
+
+    for name, damage, expect in (
+        ("hash", other_hash, "model_sha256"),
+        ("onnx", cut_onnx, "onnxruntime cannot load"),
+        ("json", bad_json, "not valid JSON"),
+        ("edited", edited_json, "differs from"),
+    ):
+        bad = broken(name, damage)
+        log = tmp_path / f"{name}.mcap"
+        for cmd in (["run", str(bad), "--seconds", "0.2", "--out", str(log)],
+                    ["check", str(bad), "--weights", "up=1", "--episodes", "1"]):  # fmt: skip
+            line = _one_error_line(*_cli(["deploy", *cmd], capsys)[::2])
+            assert expect in line, line
+        assert not log.exists()
+
+
+def test_listen_binds_loopback_unless_host_is_given() -> None:
+    from amorctl.cli.deploy import _listen_address
+    from amorctl.deploy.runtime_input import Rejected, parse_message
+
+    assert _listen_address("udp://127.0.0.1:9870", None) == ("127.0.0.1", 9870)
+    assert _listen_address("udp://localhost:9870", None) == ("127.0.0.1", 9870)
+    with pytest.raises(AmorError, match="--host"):
+        _listen_address("udp://0.0.0.0:9870", None)
+    assert _listen_address("udp://127.0.0.1:9870", "0.0.0.0") == ("0.0.0.0", 9870)
+    with pytest.raises(AmorError, match="udp://"):
+        _listen_address("tcp://127.0.0.1:1", None)
+    np.testing.assert_allclose(
+        parse_message(b'{"weights": {"up": 2, "lo": 2}}', ["up", "lo", "x"]), [0.5, 0.5, 0]
+    )
+    with pytest.raises(Rejected, match="not_number"):
+        parse_message(b'{"weights": [true, 1, 1]}', ["up", "lo", "x"])

@@ -1,0 +1,361 @@
+"""Data-parallel MOPPO over ``torch.distributed`` (issue 17), on loopback with 2 processes.
+
+Each test starts two ranks as plain subprocesses with torchrun's environment variables (RANK,
+WORLD_SIZE, MASTER_ADDR=127.0.0.1, a free MASTER_PORT, gloo bound to ``lo``); the ranks run
+this file's ``__main__`` in one of the modes below. The toy env and tiny nets keep each launch to
+a few seconds, most of it importing torch.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from amorctl.core.config import TrainConfig, merge
+from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
+from amorctl.train import distributed
+from amorctl.train.checkpoint import list_checkpoints, load_checkpoint
+
+HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
+TINY = {
+    "run": {"iterations": 6, "checkpoint_every": 2, "keep_checkpoints": 0, "tensorboard": False,
+            "threads": 1},
+    "env": {"kind": "toy", "num_envs": 32, "episode_seconds": 0.3},
+    "network": {"actor_hidden": [16, 16], "critic_hidden": [16, 16]},
+    "ppo": {"precision": "fp32", "num_steps": 8, "num_epochs": 2, "num_minibatches": 2},
+}  # fmt: skip
+TIMEOUT_S = 20.0  # AMORCTL_DIST_TIMEOUT of the launched ranks
+B, MINIBATCHES, EPOCHS = 64, 4, 2  # the fixed batch of the update test
+
+
+def tiny_config(**sections: dict) -> TrainConfig:
+    data = {k: dict(v) for k, v in TINY.items()}
+    for key, values in sections.items():
+        data[key].update(values)
+    return merge(TrainConfig(), data, "test")
+
+
+# ---------------------------------------------------------------------------- launching
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def launch(mode: str, directory: Path, world: int = 2) -> list[subprocess.Popen]:
+    """Start ``world`` ranks of this file's ``mode`` (stdout/stderr to files in ``directory``)."""
+    port = free_port()
+    procs = []
+    for rank in range(world):
+        env = {
+            **os.environ,
+            "RANK": str(rank),
+            "LOCAL_RANK": str(rank),
+            "WORLD_SIZE": str(world),
+            "LOCAL_WORLD_SIZE": str(world),
+            "MASTER_ADDR": "127.0.0.1",
+            "MASTER_PORT": str(port),
+            "GLOO_SOCKET_IFNAME": "lo",
+            "OMP_NUM_THREADS": "1",
+            distributed.TIMEOUT_ENV: str(TIMEOUT_S),
+            "PYTHONPATH": str(ROOT),
+        }
+        out = (directory / f"rank{rank}.out").open("w")
+        err = (directory / f"rank{rank}.err").open("w")
+        procs.append(
+            subprocess.Popen(
+                [sys.executable, str(HERE), mode, str(directory)], env=env, stdout=out, stderr=err
+            )
+        )
+    return procs
+
+
+def wait_all(procs: list[subprocess.Popen], directory: Path, timeout: float = 120.0) -> list[int]:
+    codes = []
+    for p in procs:
+        try:
+            codes.append(p.wait(timeout=timeout))
+        except subprocess.TimeoutExpired:
+            for q in procs:
+                q.kill()
+            raise
+    return codes
+
+
+def logs(directory: Path, rank: int) -> str:
+    return (directory / f"rank{rank}.err").read_text() + (directory / f"rank{rank}.out").read_text()
+
+
+def rows(run: Path) -> list[dict[str, str]]:
+    if not (run / "metrics.csv").exists():
+        return []
+    return list(csv.DictReader((run / "metrics.csv").open()))
+
+
+# ---------------------------------------------------------------------------- the fixed batch
+def fixed_batch(trainer, seed: int = 7):
+    """B samples with actions, log-probs, values, advantages and returns made from ``trainer``'s
+    current networks (so the PPO ratio starts at 1), identical wherever it is built."""
+    from amorctl.plugins.backends.torch_cpu.moppo import Batch
+    from amorctl.plugins.backends.torch_cpu.networks import gaussian_log_prob
+
+    g = torch.Generator().manual_seed(seed)
+    obs = torch.randn(B, 5, generator=g)
+    w = torch.rand(B, 2, generator=g)
+    obs[:, 3:] = w / w.sum(1, keepdim=True)
+    with torch.no_grad():
+        means, values = trainer._forward(obs)
+        log_std = trainer.actor.log_std.detach().clone()
+        actions = means + torch.exp(log_std) * torch.randn(B, 1, generator=g)
+        log_probs = gaussian_log_prob(actions, means, log_std)
+    zeros = torch.zeros(1, B, 2)
+    return Batch(
+        obs=obs, actions=actions, log_probs=log_probs, means=means, values=values, weights=obs[:, 3:],
+        rewards=zeros, next_values=zeros, terminated=torch.zeros(1, B, dtype=torch.bool),
+        truncated=torch.zeros(1, B, dtype=torch.bool), old_log_std=log_std,
+        advantages=torch.randn(B, 2, generator=g) * 3 + 1, returns=values + torch.randn(B, 2, generator=g),
+    )  # fmt: skip
+
+
+def rank_plans() -> list[list[torch.Tensor]]:
+    """Each rank's minibatch plan over its B/2 rows (fixed seeds)."""
+    plans = []
+    for rank in range(2):
+        g = torch.Generator().manual_seed(100 + rank)
+        plans.append(
+            [
+                idx
+                for _ in range(EPOCHS)
+                for idx in torch.randperm(B // 2, generator=g).tensor_split(MINIBATCHES)
+            ]
+        )
+    return plans
+
+
+def half(batch, rank: int):
+    from dataclasses import replace
+
+    rows_ = slice(rank * B // 2, (rank + 1) * B // 2)
+    fields = ("obs", "actions", "log_probs", "means", "values", "weights", "advantages", "returns")
+    return replace(batch, **{f: getattr(batch, f)[rows_] for f in fields})
+
+
+def update_trainer(distributed_: bool):
+    from amorctl.envs.toy import ToyTradeoffEnv
+    from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
+
+    config = tiny_config(ppo={"normalize_obs": False, "learning_rate": 3e-3, "desired_kl": 0.001,
+                              "num_epochs": EPOCHS, "num_minibatches": MINIBATCHES})  # fmt: skip
+    return MOPPOTrainer(
+        ToyTradeoffEnv(4, seed=1), config.network, config.ppo, seed=0, distributed=distributed_
+    )
+
+
+def module_arrays(trainer) -> dict[str, np.ndarray]:
+    from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays
+
+    return modules_to_arrays(trainer._modules())
+
+
+# ---------------------------------------------------------------------------- rank programs
+def main_update(directory: Path, world: distributed.World) -> None:
+    """One update of 2 ranks × B/2 samples; the normalizer's all-reduced fold; a planted mismatch."""
+    trainer = update_trainer(True)
+    batch = fixed_batch(trainer)
+    stats = trainer.update(half(batch, world.rank), rank_plans()[world.rank])
+    trainer._update_normalizer(half(batch, world.rank).obs)
+    arrays = module_arrays(trainer)
+    arrays["learning_rate"] = np.array(trainer.learning_rate)
+    arrays["kl"] = np.array(stats["kl"])
+    np.savez(directory / f"update{world.rank}.npz", **arrays)
+    if world.rank == 1:
+        with torch.no_grad():
+            trainer.actor.log_std += 1e-3
+    try:
+        trainer.replicas.check_identical(trainer._modules(), 1)
+        found = "no mismatch found"
+    except AmorError as err:
+        found = str(err)
+    (directory / f"mismatch{world.rank}.txt").write_text(found)
+
+
+def main_train(directory: Path, world: distributed.World) -> None:
+    """A 6-iteration run, and the same run interrupted after 3 iterations and resumed."""
+    from amorctl.train.loop import train_run
+
+    config = tiny_config()
+    train_run(config, directory / "full")
+    part = train_run(config, directory / "part", stop_after=3)
+    assert part.interrupted and part.end_iteration == 3
+    notes: list[str] = []
+    resumed = train_run(config, directory / "part", resume=True, on_note=notes.append)
+    assert (resumed.start_iteration, resumed.end_iteration) == (3, 6) and not notes
+
+
+def main_cli(directory: Path, world: distributed.World) -> None:
+    """``amorctl train`` on this rank (the CLI joins the group from the environment itself)."""
+    from amorctl.cli.main import main
+
+    config = directory / "long.toml"
+    resume = ["--resume"] if (directory / "run" / "config.toml").exists() else []
+    sys.exit(main(["train", "--config", str(config), "--out", str(directory / "run"), "--json", *resume]))
+
+
+# ---------------------------------------------------------------------------- tests
+def test_local_config_splits_envs_and_seeds_per_rank() -> None:
+    config = tiny_config()
+    assert distributed.local_config(config, distributed.World()) is config
+    parts = [distributed.local_config(config, distributed.World(r, 4)) for r in range(4)]
+    assert [p.env.num_envs for p in parts] == [8] * 4
+    assert parts[0].run.seed == config.run.seed and len({p.run.seed for p in parts}) == 4
+    with pytest.raises(AmorError, match="num_envs = 32 is not divisible by the 3 processes"):
+        distributed.local_config(config, distributed.World(0, 3))
+
+
+def test_rank_rows_cover_every_row_once_in_order() -> None:
+    for count in (0, 1, 7, 10):
+        for size in (1, 2, 3):
+            blocks = [distributed.rank_rows(count, distributed.World(r, size)) for r in range(size)]
+            assert [i for s in blocks for i in range(count)[s]] == list(range(count))
+            assert max(len(range(count)[s]) for s in blocks) - min(len(range(count)[s]) for s in blocks) <= 1
+
+
+def test_rank_snapshot_cuts_a_merged_snapshot_back_per_rank() -> None:
+    merged = Snapshot(
+        {"actor.w": np.ones(3), "rank0/obs": np.zeros(2), "rank1/obs": np.ones(2)},
+        {"iteration": 4, distributed.WORLD_KEY: 2, distributed.RANKS_KEY: [{"iteration": 4, "p": 0}, {"iteration": 4, "p": 1}]},
+    )  # fmt: skip
+    one = distributed.rank_snapshot(merged, 1)
+    assert sorted(one.arrays) == ["actor.w", "obs"] and one.arrays["obs"].tolist() == [1, 1]
+    assert one.meta == {"iteration": 4, "p": 1} and distributed.snapshot_world_size(merged) == 2
+    plain = Snapshot({"obs": np.zeros(1)}, {"iteration": 1})
+    assert distributed.rank_snapshot(plain, 0) is plain and distributed.snapshot_world_size(plain) == 1
+    with pytest.raises(AmorError, match="holds 2 ranks, not rank 2"):
+        distributed.rank_snapshot(merged, 2)
+
+
+def test_two_rank_update_equals_the_one_process_update_on_the_same_samples(tmp_path: Path) -> None:
+    procs = launch("update", tmp_path)
+    reference = update_trainer(False)  # meanwhile: 1 process, all B samples, the same minibatches
+    batch = fixed_batch(reference)
+    p0, p1 = rank_plans()
+    stats = reference.update(batch, [torch.cat([a, b + B // 2]) for a, b in zip(p0, p1, strict=True)])
+    reference.normalizer.update(batch.obs)
+    expect = module_arrays(reference)
+    assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
+    ranks = [dict(np.load(tmp_path / f"update{r}.npz")) for r in range(2)]
+    for key, value in expect.items():
+        np.testing.assert_array_equal(ranks[0][key], ranks[1][key], err_msg=key)  # identical replicas
+        np.testing.assert_allclose(ranks[0][key], value, rtol=0, atol=1e-6, err_msg=key)
+    assert not np.allclose(expect["actor.net.0.weight"], update_trainer(False).actor.net[0].weight.detach())
+    # the adaptive learning rate followed the all-reduced KL, as the 1-process one did
+    assert float(ranks[0]["learning_rate"]) == reference.learning_rate != 3e-3
+    assert abs(float(ranks[0]["kl"]) - stats["kl"]) < 1e-6
+    for rank in range(2):
+        assert "parameters differ at iteration 1" in (tmp_path / f"mismatch{rank}.txt").read_text()
+
+
+def test_two_rank_run_is_replicated_and_resumes_to_the_same_metrics(tmp_path: Path) -> None:
+    procs = launch("train", tmp_path)
+    assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
+    assert not logs(tmp_path, 1).strip()  # rank 1 is quiet
+    full, part = tmp_path / "full", tmp_path / "part"
+    assert [i for i, _ in list_checkpoints(full / "checkpoints")] == [2, 4, 6]
+    assert [i for i, _ in list_checkpoints(part / "checkpoints")] == [2, 3, 4, 6]
+    a, b = rows(full), rows(part)
+    assert [r["iteration"] for r in a] == [r["iteration"] for r in b] == [f"{i}.0" for i in range(1, 7)]
+    assert float(a[-1]["env_steps"]) == 6 * 32 * 8  # both ranks' steps
+    for ra, rb in zip(a, b, strict=True):
+        for key in ra:
+            if not key.startswith("time/") and key not in ("env_steps_per_s", "wall_time_s"):
+                assert ra[key] == rb[key], (ra["iteration"], key)
+    ca = load_checkpoint(full / "checkpoints/iter_000006.json")
+    cb = load_checkpoint(part / "checkpoints/iter_000006.json")
+    assert ca.trainer.meta[distributed.WORLD_KEY] == 2
+    for x, y in ((ca.trainer, cb.trainer), (ca.env, cb.env)):
+        assert x is not None and y is not None and x.arrays.keys() == y.arrays.keys()
+        for key in x.arrays:
+            np.testing.assert_array_equal(x.arrays[key], y.arrays[key], err_msg=key)
+    # networks and optimizer are stored once (identical on both ranks); observations, RNG, env per rank
+    keys = ca.trainer.arrays.keys()
+    assert "actor.net.0.weight" in keys and not any(k.startswith("rank") and "actor" in k for k in keys)
+    assert {"rank0/obs", "rank1/obs", "rank0/rng.torch", "rank1/rng.torch"} <= keys
+    assert ca.env is not None and {"rank0/s", "rank1/s"} <= ca.env.arrays.keys()
+    assert ca.trainer.arrays["rank0/obs"].shape == (16, 5)
+
+    # one process continues the 2-process run: networks carry on, envs restart, and it says so
+    from amorctl.train.loop import train_run
+
+    notes: list[str] = []
+    torch.set_num_threads(1)
+    more = train_run(tiny_config(run={"iterations": 7}), part, resume=True, on_note=notes.append)
+    assert more.end_iteration == 7 and len(notes) == 1
+    assert "saved by 2 process(es), this run has 1" in notes[0] and "envs restart" in notes[0]
+    single = load_checkpoint(part / "checkpoints/iter_000007.json")
+    assert distributed.WORLD_KEY not in single.trainer.meta and single.trainer.arrays["obs"].shape == (32, 5)
+
+
+def _long_run(tmp_path: Path) -> None:
+    config = tmp_path / "long.toml"
+    config.write_text(
+        "[run]\niterations = 100000\ncheckpoint_every = 100000\ntensorboard = false\nthreads = 1\n"
+        '[env]\nkind = "toy"\nnum_envs = 32\nepisode_seconds = 0.3\n'
+        "[network]\nactor_hidden = [16]\ncritic_hidden = [16]\n"
+        '[ppo]\nprecision = "fp32"\nnum_steps = 8\nnum_epochs = 1\nnum_minibatches = 1\n'
+    )
+
+
+def _wait_rows(run: Path, count: int, procs: list[subprocess.Popen], timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and len(rows(run)) < count:
+        assert all(p.poll() is None for p in procs), "a rank ended early"
+        time.sleep(0.1)
+    assert len(rows(run)) >= count
+
+
+def test_sigterm_on_one_rank_stops_both_and_a_dead_rank_fails_the_other(tmp_path: Path) -> None:
+    _long_run(tmp_path)
+    run = tmp_path / "run"
+    procs = launch("cli", tmp_path)
+    _wait_rows(run, 3, procs)
+    procs[1].send_signal(signal.SIGTERM)  # only rank 1 is told
+    codes = wait_all(procs, tmp_path, timeout=60)
+    assert codes == [130, 143], logs(tmp_path, 0) + logs(tmp_path, 1)
+    (iteration, path), *more = list_checkpoints(run / "checkpoints")
+    assert not more and len(rows(run)) == iteration >= 3  # both stopped at the iteration rank 0 saved
+    summary = json.loads((tmp_path / "rank0.out").read_text())
+    assert summary["interrupted"] and summary["end_iteration"] == iteration
+    assert load_checkpoint(path).trainer.meta[distributed.WORLD_KEY] == 2
+
+    procs = launch("cli", tmp_path)  # resume with 2 ranks, then kill rank 1 outright
+    _wait_rows(run, iteration + 2, procs)
+    procs[1].kill()
+    killed = time.monotonic()
+    code = procs[0].wait(timeout=TIMEOUT_S + 30)
+    waited = time.monotonic() - killed
+    assert code != 0 and waited < TIMEOUT_S + 10, (code, waited)
+    err = (tmp_path / "rank0.err").read_text()
+    assert "another rank died or stopped answering" in err and "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------- rank entry point
+if __name__ == "__main__":
+    mode, where = sys.argv[1], Path(sys.argv[2])
+    torch.set_num_threads(1)
+    if mode == "cli":
+        main_cli(where, distributed.World())
+    with distributed.session() as world_:
+        {"update": main_update, "train": main_train}[mode](where, world_)

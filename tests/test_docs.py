@@ -1,0 +1,56 @@
+"""The documentation stands on its own: every relative link resolves to a file in the repository."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
+
+_FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)
+_CODE = re.compile(r"`[^`\n]*`")
+_INLINE = re.compile(r"!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+[\"'][^)]*[\"'])?\s*\)")
+_REFERENCE = re.compile(r"^\s{0,3}\[[^\]]+\]:\s*<?(\S+?)>?(?:\s|$)", re.M)
+
+
+def relative_links(markdown: str) -> list[str]:
+    """Link targets outside code, without ``#anchor``; web and mail links left out."""
+    text = _CODE.sub("", _FENCE.sub("", markdown))
+    targets = _INLINE.findall(text) + _REFERENCE.findall(text)
+    out = []
+    for target in targets:
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target, re.I) or target.startswith("#"):
+            continue
+        out.append(target.split("#", 1)[0])
+    return out
+
+
+def test_link_parser() -> None:
+    md = (
+        '[a](docs/x.md#part) ![img](img/p.png "title") [w](https://e.org) [s](#here)\n'
+        "`[not](code.md)`\n```\n[no](fenced.md)\n```\n[ref]: ../outside.md\n"
+    )
+    assert relative_links(md) == ["docs/x.md", "img/p.png", "../outside.md"]
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_resolves_inside_the_repository(doc: Path) -> None:
+    broken = []
+    for target in relative_links(doc.read_text()):
+        path = (doc.parent / target).resolve()
+        if ROOT not in path.parents and path != ROOT:
+            broken.append(f"{target} (outside the repository)")
+        elif not path.exists():
+            broken.append(f"{target} (no such file)")
+    assert not broken, f"{doc.relative_to(ROOT)}: broken links: {', '.join(broken)}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_reference_to_files_outside_the_repository(doc: Path) -> None:
+    """Plain-text mentions count too: ``../shared/...`` and the design notes are not shipped."""
+    text = doc.read_text()
+    for needle in ("../shared", "DESIGN.md", "RECIPES.md", "PERFORMANCE.md", "amor-paper.tex"):
+        assert needle not in text, f"{doc.relative_to(ROOT)} refers to {needle!r} (not in the repository)"
