@@ -13,9 +13,11 @@ breaking plugins::
 
 What is here, by plugin kind (see ``docs/plugins.md``):
 
-- every kind: :data:`hookimpl`, :class:`AmorError` (errors the user can fix), ``__version__``;
+- every kind: :data:`hookimpl`, :class:`AmorError` (errors the user can fix), ``__version__``,
+  :func:`get_registry` (other installed plugins, by name);
 - characters: :class:`CharacterSpec`, :class:`JointSpec`, :class:`ActuatorModel`,
-  :data:`KEYPOINTS`, :data:`JOINT_GROUPS`;
+  :data:`KEYPOINTS`, :data:`JOINT_GROUPS`, :func:`character_from_mjcf` (a spec read from a model
+  file), :func:`package_file` (a model inside another installed package), :func:`plugin_cache_dir`;
 - objective sets: :class:`ObjectiveSetSpec`, :class:`ObjectiveSet`, :class:`TrackingInputs`,
   :class:`FrameParts`, :func:`split_frame`, :func:`frame_dim`;
 - backends: :class:`BackendSpec`, :class:`Backend`, :class:`Trainer`, :class:`Policy`,
@@ -69,7 +71,8 @@ from amorctl.motion.source import (
     check_times,
     deepmimic_skeleton,
 )
-from amorctl.registry import hookimpl
+from amorctl.registry import get_registry, hookimpl
+from amorctl.sim.from_mjcf import character_from_mjcf, package_file, plugin_cache_dir
 
 __all__ = [
     "CANONICAL_JOINTS",
@@ -99,12 +102,16 @@ __all__ = [
     "Trainer",
     "VectorEnv",
     "__version__",
+    "character_from_mjcf",
     "check_finite",
     "check_times",
     "deepmimic_skeleton",
     "file_sha256",
     "frame_dim",
+    "get_registry",
     "hookimpl",
+    "package_file",
+    "plugin_cache_dir",
     "split_frame",
     "tracking_view",
 ]

@@ -156,27 +156,11 @@ def load_registry(
         pm.enable_tracing()
 
     registry = Registry()
-    blocked = _blocked_names()
+    if eps is None:
+        eps = entry_points(group=ENTRY_POINT_GROUP)
     origin: dict[str, tuple[str, str]] = {}  # plugin name -> (package, version)
     loaded: list[tuple[str, object]] = []
-
-    for ep in sorted(entry_points(group=ENTRY_POINT_GROUP) if eps is None else eps, key=lambda e: e.name):
-        package, version = _dist_of(ep)
-        if ep.name in blocked or package in blocked:
-            registry.problems.append(PluginProblem(ep.name, package, version, "blocked"))
-            _trace(f"blocked plugin {ep.name!r} from {package}")
-            continue
-        try:
-            module = ep.load()
-        except Exception as exc:  # a broken plugin must not take the others down
-            registry.problems.append(
-                PluginProblem(ep.name, package, version, "broken", f"{type(exc).__name__}: {exc}")
-            )
-            _trace(f"plugin {ep.name!r} from {package} failed to import: {exc}")
-            continue
-        origin[ep.name] = (package, version)
-        loaded.append((ep.name, module))
-    for name, obj, package, version in extra_plugins:
+    for name, obj, package, version in [*_import_plugins(eps, registry), *extra_plugins]:
         origin[name] = (package, version)
         loaded.append((name, obj))
 
@@ -202,6 +186,29 @@ def load_registry(
                     PluginProblem(name, package, version, "broken", f"{type(exc).__name__}: {exc}")
                 )
     return registry
+
+
+def _import_plugins(eps: Iterable[EntryPoint], registry: Registry) -> list[tuple[str, object, str, str]]:
+    """Import every entry point's module (by name order), except blocked ones; blocked and broken
+    plugins are recorded in ``registry.problems``. Returns (name, module, package, version) rows."""
+    blocked = _blocked_names()
+    imported: list[tuple[str, object, str, str]] = []
+    for ep in sorted(eps, key=lambda e: e.name):
+        package, version = _dist_of(ep)
+        if ep.name in blocked or package in blocked:
+            registry.problems.append(PluginProblem(ep.name, package, version, "blocked"))
+            _trace(f"blocked plugin {ep.name!r} from {package}")
+            continue
+        try:
+            module = ep.load()
+        except Exception as exc:  # a broken plugin must not take the others down
+            registry.problems.append(
+                PluginProblem(ep.name, package, version, "broken", f"{type(exc).__name__}: {exc}")
+            )
+            _trace(f"plugin {ep.name!r} from {package} failed to import: {exc}")
+            continue
+        imported.append((ep.name, module, package, version))
+    return imported
 
 
 def _registrar(

@@ -52,7 +52,8 @@ def main() -> None:
             preset = load_hlp_preset("v30" if v == 30 else "v2")
             config = merge(
                 preset,
-                {"run": {"iterations": 100000, "checkpoint_every": 20, "tensorboard": False, "threads": 1},
+                {"run": {"iterations": 100000, "checkpoint_every": 50, "keep_checkpoints": 1,
+                         "tensorboard": False, "threads": 1},
                  "env": {"num_envs": args.envs}},
                 "benchmark",
             )  # fmt: skip

@@ -109,11 +109,16 @@ def test_bundle_has_named_inputs_metadata_in_onnx_and_sidecar(bundle_dir: Path, 
 def test_onnx_matches_the_torch_policy_and_w_alone_changes_its_output(
     bundle_dir: Path, deploy_run: Path
 ) -> None:
+    from amorctl.core.contracts import Policy
     from amorctl.train.rundir import RunDir
 
     b = read_bundle(bundle_dir)
     policy = RunDir.open(deploy_run).policy()
+    assert isinstance(policy, Policy)  # the whole contract, observation_layout and export_arrays included
+    assert policy.observation_layout["weights"] == (policy.obs_dim - 7, policy.obs_dim)
     snap = policy.export_arrays()
+    assert snap.meta["format"] == "amorctl-mlp-policy/1" and snap.meta["actor_layers"] == 2
+    assert all(a.dtype == np.float32 for a in snap.arrays.values())
     obs = parity_observations(
         snap.arrays["normalizer/mean"], snap.arrays["normalizer/scale"], 7, 1000, seed=5
     )
@@ -434,3 +439,20 @@ def test_listen_binds_loopback_unless_host_is_given() -> None:
     )
     with pytest.raises(Rejected, match="not_number"):
         parse_message(b'{"weights": [true, 1, 1]}', ["up", "lo", "x"])
+
+
+def test_checkpoint_style_policy_arrays_convert_to_the_exporters_names(deploy_run: Path) -> None:
+    from amorctl.core.contracts import Snapshot
+    from amorctl.deploy.export import neutral_arrays
+    from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays
+    from amorctl.train.rundir import RunDir
+
+    policy = RunDir.open(deploy_run).policy()
+    modules = {"actor": policy.actor, "critic": policy.critic, "normalizer": policy.normalizer}
+    style = Snapshot(modules_to_arrays(modules), {"normalizer_eps": policy.normalizer.eps, "obs_clip": 10.0})
+    arrays, meta = neutral_arrays(style)  # the names the jax-mjx backend hands out
+    want = policy.export_arrays()
+    assert meta["actor_layers"] == want.meta["actor_layers"] == 2
+    for key, value in want.arrays.items():
+        if key != "actor/log_std":
+            np.testing.assert_array_equal(arrays[key], value)

@@ -9,6 +9,7 @@ a few seconds, most of it importing torch.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import signal
@@ -39,6 +40,7 @@ TINY = {
 }  # fmt: skip
 TIMEOUT_S = 20.0  # AMORCTL_DIST_TIMEOUT of the launched ranks
 B, MINIBATCHES, EPOCHS = 64, 4, 2  # the fixed batch of the update test
+SWEEP_K, SWEEP_E = 16, 8  # weight vectors and episodes of the Pareto test
 
 
 def tiny_config(**sections: dict) -> TrainConfig:
@@ -209,9 +211,28 @@ def main_cli(directory: Path, world: distributed.World) -> None:
     """``amorctl train`` on this rank (the CLI joins the group from the environment itself)."""
     from amorctl.cli.main import main
 
-    config = directory / "long.toml"
-    resume = ["--resume"] if (directory / "run" / "config.toml").exists() else []
-    sys.exit(main(["train", "--config", str(config), "--out", str(directory / "run"), "--json", *resume]))
+    run = directory / "run"
+    how = ["--resume"] if (run / "config.toml").exists() else ["--config", str(directory / "long.toml")]
+    sys.exit(main(["train", "--out", str(run), "--json", *how]))
+
+
+def main_pareto(directory: Path, world: distributed.World) -> None:
+    """A 2-rank Pareto sweep and a 2-rank weight sweep of the toy run in ``directory/run``."""
+    from amorctl.analysis.eval_env import sweep_weights
+    from amorctl.analysis.sweep_ranks import pareto_sweep_ranks, weight_sweep_ranks
+    from amorctl.analysis.sweeps import pareto_csv, pareto_to_dict
+    from amorctl.train.rundir import RunDir
+
+    run = RunDir.open(directory / "run")
+    policy, config = run.policy(), run.config
+    weights, sampling = sweep_weights(2, SWEEP_K, seed=0)
+    sweep = pareto_sweep_ranks(policy, config, weights, episodes=SWEEP_E, seed=3, sampling=sampling)
+    ws = weight_sweep_ranks(policy, config, "right", episodes=4, seed=3)
+    assert (sweep is None) == (ws is None) == (world.rank != 0)
+    if sweep is not None and ws is not None:
+        (directory / "pareto.csv").write_text(pareto_csv(sweep))
+        doc = {"pareto": pareto_to_dict(sweep), "sweep": ws.to_dict()}
+        (directory / "pareto.json").write_text(json.dumps(doc))
 
 
 # ---------------------------------------------------------------------------- tests
@@ -234,10 +255,11 @@ def test_rank_rows_cover_every_row_once_in_order() -> None:
 
 
 def test_rank_snapshot_cuts_a_merged_snapshot_back_per_rank() -> None:
+    ranks = [{"iteration": 4, "p": 0}, {"iteration": 4, "p": 1}]
     merged = Snapshot(
         {"actor.w": np.ones(3), "rank0/obs": np.zeros(2), "rank1/obs": np.ones(2)},
-        {"iteration": 4, distributed.WORLD_KEY: 2, distributed.RANKS_KEY: [{"iteration": 4, "p": 0}, {"iteration": 4, "p": 1}]},
-    )  # fmt: skip
+        {"iteration": 4, distributed.WORLD_KEY: 2, distributed.RANKS_KEY: ranks},
+    )
     one = distributed.rank_snapshot(merged, 1)
     assert sorted(one.arrays) == ["actor.w", "obs"] and one.arrays["obs"].tolist() == [1, 1]
     assert one.meta == {"iteration": 4, "p": 1} and distributed.snapshot_world_size(merged) == 2
@@ -308,6 +330,61 @@ def test_two_rank_run_is_replicated_and_resumes_to_the_same_metrics(tmp_path: Pa
     assert distributed.WORLD_KEY not in single.trainer.meta and single.trainer.arrays["obs"].shape == (32, 5)
 
 
+def test_two_rank_sweeps_gather_the_rank_blocks_into_the_one_process_layout(
+    tmp_path: Path, toy_run: Path
+) -> None:
+    from amorctl.analysis.eval_env import sweep_weights
+    from amorctl.analysis.front import summarize_front
+    from amorctl.analysis.sweeps import pareto_sweep, weight_sweep
+    from amorctl.train.rundir import RunDir
+
+    torch.set_num_threads(1)
+    (tmp_path / "run").symlink_to(toy_run)  # trained: its actions follow w
+    procs = launch("pareto", tmp_path)
+    run = RunDir.open(tmp_path / "run")
+    policy, config = run.policy(), run.config
+    weights, _ = sweep_weights(2, SWEEP_K, seed=0)
+    seeds = [distributed.rank_seed(3, r) for r in range(2)]
+    halves = [pareto_sweep(policy, config, weights[s], episodes=SWEEP_E, seed=seed)
+              for s, seed in zip((slice(0, 8), slice(8, 16)), seeds, strict=True)]  # fmt: skip
+    full = pareto_sweep(policy, config, weights, episodes=SWEEP_E, seed=3)
+    levels = [weight_sweep(policy, config, "right", episodes=2, seed=seed) for seed in seeds]
+    assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
+    assert not (tmp_path / "rank1.out").read_text()
+    doc = json.loads((tmp_path / "pareto.json").read_text())
+    (front,) = doc["pareto"]["motions"]
+    points = np.concatenate([h.groups[0].points for h in halves])
+    np.testing.assert_array_equal(np.array(front["points"]), points)  # each rank's block, in row order
+    np.testing.assert_array_equal(np.array(doc["pareto"]["weights"]), weights)
+    assert front["equal_weights_point"] == halves[0].groups[0].equal_point.tolist()
+    summary = summarize_front(points, weights, None, seed=3)
+    assert front["non_dominated"] == summary.non_dominated.tolist()
+    assert front["hypervolume"]["value"] == summary.hypervolume.value
+    assert doc["pareto"]["timing"]["num_envs"] == sum(h.num_envs for h in halves)
+    csv_rows = list(csv.DictReader(io.StringIO((tmp_path / "pareto.csv").read_text())))
+    assert [r["sample"] for r in csv_rows] == [str(k) for k in range(SWEEP_K)] + ["equal"]
+    # the same front as the 1-process sweep up to the episodes' random starts: each weight's
+    # returns agree (rows correlate), and so does the hypervolume
+    one = full.groups[0]
+    for i in range(2):
+        assert np.corrcoef(points[:, i], one.points[:, i])[0, 1] > 0.8
+
+    def hypervolume(pts: np.ndarray) -> float:
+        return summarize_front(pts, weights, [0.0, 0.0]).hypervolume.value
+
+    ones = [hypervolume(one.points)] + [
+        hypervolume(pareto_sweep(policy, config, weights, episodes=SWEEP_E, seed=s).groups[0].points)
+        for s in (4, 5, 6)
+    ]  # the seed-to-seed spread of the 1-process front
+    assert abs(hypervolume(points) - np.mean(ones)) < 3 * np.std(ones), (hypervolume(points), ones)
+    # the weight sweep: 2 episodes per level from each rank, side by side
+    sweep = doc["sweep"]
+    np.testing.assert_array_equal(
+        np.array(sweep["returns"]), np.concatenate([ws.returns for ws in levels], axis=1)
+    )
+    assert sweep["levels"] == levels[0].levels.tolist() and np.isfinite(sweep["spearman_rho"])
+
+
 def _long_run(tmp_path: Path) -> None:
     config = tmp_path / "long.toml"
     config.write_text(
@@ -351,6 +428,41 @@ def test_sigterm_on_one_rank_stops_both_and_a_dead_rank_fails_the_other(tmp_path
     assert "another rank died or stopped answering" in err and "Traceback" not in err
 
 
+def test_nproc_refuses_an_env_count_it_cannot_split_before_launching(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    from amorctl.cli.main import main
+
+    out = tmp_path / "run"
+    code = main(["train", "--env", "toy", "--num-envs", "5", "--nproc", "2", "--out", str(out)])
+    assert code == 2 and "num_envs = 5 is not divisible by the 2 processes" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_nproc_launches_torchrun_and_only_rank_0_reports(tmp_path: Path) -> None:
+    config = tmp_path / "tiny.toml"
+    config.write_text(
+        "[run]\niterations = 3\ncheckpoint_every = 3\ntensorboard = false\nthreads = 1\n"
+        '[env]\nkind = "toy"\nnum_envs = 16\nepisode_seconds = 0.3\n'
+        "[network]\nactor_hidden = [8]\ncritic_hidden = [8]\n"
+        '[ppo]\nprecision = "fp32"\nnum_steps = 4\nnum_epochs = 1\nnum_minibatches = 1\n'
+    )
+    out = tmp_path / "run"
+    env = {**os.environ, "GLOO_SOCKET_IFNAME": "lo", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        [sys.executable, "-m", "amorctl", "train", "--config", str(config), "--out", str(out), "--nproc", "2",
+         "--json"],
+        capture_output=True, text=True, env=env, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout[done.stdout.index("{") :])  # after the launch line
+    assert summary["end_iteration"] == 3 and summary["metrics"]["env_steps"] == 3 * 16 * 4
+    assert done.stdout.count('"end_iteration"') == 1  # rank 1 printed nothing
+    ckpt = load_checkpoint(out / "checkpoints/iter_000003.json")
+    assert ckpt.trainer.meta[distributed.WORLD_KEY] == 2 and len(rows(out)) == 3
+
+
 # ---------------------------------------------------------------------------- rank entry point
 if __name__ == "__main__":
     mode, where = sys.argv[1], Path(sys.argv[2])
@@ -358,4 +470,4 @@ if __name__ == "__main__":
     if mode == "cli":
         main_cli(where, distributed.World())
     with distributed.session() as world_:
-        {"update": main_update, "train": main_train}[mode](where, world_)
+        {"update": main_update, "train": main_train, "pareto": main_pareto}[mode](where, world_)

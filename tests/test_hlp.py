@@ -132,12 +132,15 @@ def test_dataset_windows_stay_in_clip_and_pair_z_of_next_frame() -> None:
     lib = _tiny_library()
     spec = WindowSpec(3, 2, 1)
     ds = DatasetWindows(lib, spec)
-    assert len(ds) == (5 - 1) + (4 - 1)  # every frame with a next frame in its clip
+    # full windows only: end frames 2, 3 of clip 0 (frames 0-4) and 7 of clip 1 (frames 5-8)
+    np.testing.assert_array_equal(ds.ends, [2, 3, 7])
     feats = spec.features(lib.frames)
-    row = int(np.flatnonzero(ds.ends == 5)[0])  # the second clip's first frame: padding repeats it
-    np.testing.assert_array_equal(ds.windows_at(np.array([row]))[0], np.tile(feats[5], 3))
     row = int(np.flatnonzero(ds.ends == 3)[0])
     np.testing.assert_array_equal(ds.windows_at(np.array([row]))[0], feats[1:4].ravel())
+    padded = DatasetWindows(lib, WindowSpec(6, 2, 1))  # no clip holds 6 + 1 frames: padded windows
+    assert len(padded) == (5 - 1) + (4 - 1)
+    row = int(np.flatnonzero(padded.ends == 5)[0])  # the second clip's first frame repeats
+    np.testing.assert_array_equal(padded.windows_at(np.array([row]))[0], np.tile(feats[5], 6))
     _, z, rows = ds.sample(np.random.default_rng(0), 64)
     np.testing.assert_array_equal(z[:, 0], ds.ends[rows] + 1)  # z of the frame after the window
     mw, mz = ds.mismatched(np.random.default_rng(1), 64)
@@ -157,9 +160,15 @@ def test_window_history_rolls_and_resets() -> None:
     h.push(f(2))
     h.push(f(3))
     np.testing.assert_array_equal(h.buf[0, :, 0], [1, 2, 3])
+    assert h.full().all()
     h.reset(np.array([1]), f(9)[:1])
     np.testing.assert_array_equal(h.buf[1, :, 0], [9, 9, 9])
     np.testing.assert_array_equal(h.buf[0, :, 0], [1, 2, 3])
+    np.testing.assert_array_equal(h.full(), [True, False])
+    h.push(f(4))
+    np.testing.assert_array_equal(h.full(), [True, False])
+    h.push(f(5))
+    np.testing.assert_array_equal(h.full(), [True, True])
 
 
 def test_observation_slices_need_proprio_and_matching_latent() -> None:

@@ -95,7 +95,7 @@ def test_tracking_hlp_resumes_bit_exactly_and_keeps_llp_frozen(tracking_run: Pat
     for key in a[2]:
         if key not in timing:
             assert a[2][key] == b[2][key], key
-    assert float(a[2]["disc/gp"]) > 0 and "w/smooth" in a[2] and float(a[2]["disc/replay_size"]) == 64
+    assert float(a[2]["disc/gp"]) > 0 and "w/smooth" in a[2] and 0 < float(a[2]["disc/replay_size"]) <= 64
     before = policy_fingerprint(RunDir.open(tracking_run).policy())
     assert full.llp_fingerprint_before == full.llp_fingerprint_after == before
     meta = json.loads((tmp_path / "full" / "hlp.json").read_text())
@@ -187,13 +187,13 @@ def test_table2_scores_heldout_windows_with_a_fresh_discriminator(tracking_run: 
     data = table.to_json()
     assert data["schema"] == SCHEMA
     assert [r["label"] for r in data["rows"]] == ["uniform", "HLP"]
-    per_env = (50 - 10) // 5 + 1  # windows every 5 steps once 10 frames exist, over 50 steps
+    per_env = (50 - 10) // 5 + 1  # at most: every 5 steps once 10 real frames exist, over 50 steps
     for r in data["rows"]:
-        assert (
-            r["episodes"] == 4 and r["windows_heldout"] == 2 * per_env and r["windows_train"] == 2 * per_env
-        )
+        assert r["episodes"] == 4 and 0 < r["windows_heldout"] <= 2 * per_env
+        assert 0 < r["windows_train"] <= 2 * per_env
         assert np.isfinite(r["logit"]) and r["joint_mae_deg"] > 0
-    assert data["counts"]["train_windows_policy"] == 2 * 2 * per_env
+    assert data["counts"]["train_windows_policy"] == sum(r["windows_train"] for r in data["rows"])
+    assert data["counts"]["heldout_windows_policy"] == sum(r["windows_heldout"] for r in data["rows"])
     np.testing.assert_allclose(data["rows"][0]["mean_w"], 1 / 7, atol=1e-6)
     assert "held-out" in data["caption"] and str(data["counts"]["heldout_windows_policy"]) in data["caption"]
 
@@ -226,3 +226,26 @@ def test_tune_with_hlp_scales_and_renormalizes_its_weights(
             run_hlp_tune(toy, hlp, np.ones(2))
     finally:
         toy.close()
+
+
+def test_live_hlp_session_sliders_multiply_the_hlps_weights(tracking_run: Path, tmp_path: Path) -> None:
+    from amorctl.hlp.edit import edit_weights
+    from amorctl.hlp.live import HlpLiveSession
+    from amorctl.hlp.run import load_hlp
+    from amorctl.tune.session import PinnedMotion
+
+    train_hlp(tracking_run, tmp_path / "h", tiny(run={"iterations": 1}))
+    tenv = PinnedMotion(tracking_run, "sway_a")
+    try:
+        session = HlpLiveSession(tenv, load_hlp(tmp_path / "h"))
+        np.testing.assert_allclose(session.scales, 1.0)
+        np.testing.assert_allclose(session.weights, session.hlp_weights, atol=1e-6)
+        session.set_slider("smooth", 1.0)  # the full slider: x2
+        session.set_slider("up", 0.0)
+        raw = session.hlp_weights
+        rec = session.step()
+        want = edit_weights(raw[None], np.array([0, 1, 1, 1, 1, 1, 2.0]))[0]
+        np.testing.assert_allclose(rec.weights, want, atol=1e-6)
+        assert rec.weights[0] == 0 and rec.weights[6] > raw[6]
+    finally:
+        tenv.close()

@@ -279,3 +279,21 @@ def test_blocking_a_builtin_format_removes_it(monkeypatch: pytest.MonkeyPatch) -
     registry = load_registry()
     assert "npz" not in registry.names("motion-format")
     assert {"bvh", "deepmimic"} <= set(registry.names("motion-format"))
+
+
+def test_the_motion_format_example_in_the_docs_works(tmp_path: Path, with_plugins) -> None:
+    """docs/plugins.md's format plugin, run as written: registered, inferred, imported."""
+    import re
+
+    from amorctl.motion.formats import import_file
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "plugins.md").read_text()
+    (code,) = [b for b in re.findall(r"```python\n(.*?)```", doc, re.S) if "register_motion_formats" in b]
+    module = types.ModuleType("docs_rootcsv_plugin")
+    exec(compile(code, "docs/plugins.md", "exec"), module.__dict__)
+    with_plugins(("rootcsv", module))
+    path = tmp_path / "jump.rootcsv"
+    path.write_text("0,0,0.9\n0,0,1.1\n")
+    motion = import_file(path, None, ImportOptions())
+    assert motion.name == "jump" and len(motion.sha256) == 64
+    np.testing.assert_allclose(motion.root_pos[:, 2], [0.9, 1.1])

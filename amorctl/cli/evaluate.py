@@ -47,7 +47,7 @@ def _settings(
     uniform = np.full(len(names), 1.0 / len(names))
     given: list[tuple[str, WeightsSource]] = []
     if weights is not None:
-        given.append(("weights", parse_weights(weights, names)))
+        given.append(("weights", parse_weights(weights, names, source="--weights")))
     if schedule is not None:
         given.append(("schedule", schedule))
     if compare:

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 from rich.console import Group
 from rich.live import Live
@@ -321,3 +322,86 @@ def table2(
     else:
         print_table2(result)
     return data
+
+
+def tune_with_hlp(
+    run: Path, hlp_dir: Path, motion: str | None, scale: str | None, seconds: float | None,
+    weights: str | None, schedule: Path | None,
+    out: Path | None, plot: Path | None, video: Path | None, stop_on_fall: bool, seed: int,
+    live: bool, host: str, port: int, save_to: Path, json_out: bool,
+) -> None:  # fmt: skip
+    """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md)."""
+    from amorctl.cli.output import err_console
+    from amorctl.cli.tune import _check_outputs, _print_table, _result, _write_outputs
+    from amorctl.hlp.edit import parse_scales
+    from amorctl.hlp.run import load_hlp
+    from amorctl.hlp.tune import check_hlp_for, run_hlp_tune
+    from amorctl.tune.session import PinnedMotion
+
+    if weights is not None or schedule is not None:
+        raise AmorError(
+            "--hlp chooses the weights every step; drop --weights / --schedule (edit with --scale)"
+        )
+    if live and (out is not None or plot is not None or video is not None):
+        raise AmorError("--live takes no --out, --plot or --video (save keyframes on the page)")
+    if live and not 0 < port < 65536:
+        raise AmorError(f"--port must be in 1..65535, got {port}")
+    _check_outputs([out, plot, video])
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise AmorError(f"--video {video}: the file must end in .mp4")
+    hlp = load_hlp(hlp_dir)
+    tenv = PinnedMotion(run, motion, seed=seed)
+    try:
+        check_hlp_for(tenv, hlp)
+        scales = parse_scales(scale, tenv.names)
+        if live:
+            from amorctl.hlp.live import HlpLiveSession, serve_hlp_live
+
+            session = HlpLiveSession(tenv, hlp, scales, save_to=save_to)
+            serve_hlp_live(
+                session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
+            )
+            return
+        rollout, raw = run_hlp_tune(tenv, hlp, scales, seconds, stop_on_fall=stop_on_fall)
+    finally:
+        tenv.close()
+    character = tenv.view.character.name if tenv.view is not None else ""
+    _write_outputs(
+        rollout, {"run": str(run), "seed": str(seed), "hlp": str(hlp_dir)}, out, plot, video, character
+    )
+    result = _result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video})
+    names = list(rollout.objective_names)
+    result["hlp"] = {
+        "dir": str(hlp_dir),
+        "scales": dict(zip(names, scales.tolist(), strict=True)),
+        "mean_hlp_weights": dict(zip(names, raw.mean(0).tolist(), strict=True)),
+        "mean_weights": dict(zip(names, rollout.weights.mean(0).tolist(), strict=True)),
+    }
+    if json_out:
+        print_json(result)
+        return
+    _print_table(result)
+    table = Table("", *names, title="weights: the HLP's w_t (mean) and after --scale (mean)")
+    table.add_row("HLP", *(f"{result['hlp']['mean_hlp_weights'][n]:.3f}" for n in names))
+    table.add_row("× scale", *(f"{result['hlp']['scales'][n]:.2f}" for n in names))
+    table.add_row("applied", *(f"{result['hlp']['mean_weights'][n]:.3f}" for n in names))
+    console.print(table)
+
+
+def evaluate_hlp(
+    run: Path, hlp_dirs: list[Path], weights: str | None, motions: list[str] | None, compare: bool,
+    envs: int, seconds: float, disc_steps: int, seed: int, json_out: bool, other_options: dict[str, Any],
+) -> None:  # fmt: skip
+    """``amorctl evaluate RUN --hlp HLPDIR --compare``: Table 2 (docs/hlp.md)."""
+    from amorctl.hlp.eval_discriminator import TableOptions
+
+    if not compare:
+        raise AmorError("--hlp needs --compare: Table 2 sets the HLP's rows beside uniform weights")
+    given = [name for name, value in other_options.items() if value]
+    if given:
+        raise AmorError(f"--hlp (Table 2) takes no {', '.join(given)}")
+    options = TableOptions(
+        num_envs=envs, seconds=seconds, steps=disc_steps, seed=seed, motions=tuple(motions or ())
+    )
+    options.check()
+    table2(run, list(hlp_dirs), [weights] if weights else None, options, json_out)

@@ -20,7 +20,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-app.command("plugins")(plugins.plugins)
+app.add_typer(plugins.app, name="plugins")
 app.command("train")(train.train)
 app.add_typer(characters.app, name="characters")
 app.command("preprocess")(preprocess.preprocess)

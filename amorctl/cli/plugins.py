@@ -1,18 +1,30 @@
-"""``amorctl plugins``: what is installed, by name, kind, package and version."""
+"""``amorctl plugins``: what is installed, by name, kind, package and version; ``plugins new``
+writes a ready plugin package."""
 
 from __future__ import annotations
 
 from dataclasses import asdict
+from pathlib import Path
+from typing import Annotated
 
+import typer
 from rich.table import Table
 
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, print_json
 from amorctl.registry import get_registry
 
+app = typer.Typer(
+    help="List installed plugins (characters, objective sets, backends, motion formats); `new` writes one.",
+    invoke_without_command=True,
+)
 
-def plugins(json_out: JsonFlag = False) -> None:
+
+@app.callback()
+def plugins(ctx: typer.Context, json_out: JsonFlag = False) -> None:
     """List installed plugins (characters, objective sets, backends, motion formats) and any that failed."""
+    if ctx.invoked_subcommand is not None:
+        return
     registry = get_registry()
     rows = sorted(registry.provided, key=lambda p: (p.kind, p.name))
     if json_out:
@@ -31,3 +43,28 @@ def plugins(json_out: JsonFlag = False) -> None:
             f"{prob.package!r} {prob.version}{detail}",
             highlight=False,
         )
+
+
+@app.command("new")
+def new(
+    name: Annotated[str, typer.Argument(help="Plugin name: the entry point and the thing it registers.")],
+    kind: Annotated[str, typer.Option("--kind", help="character | objectives | backend")] = "character",
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Directory to create (default: ./amorctl-NAME).")
+    ] = None,
+    json_out: JsonFlag = False,
+) -> None:
+    """Write a ready plugin package: pyproject with the entry point, the hook, a test using the kit."""
+    from amorctl.testing.scaffold import new_plugin, package_names
+
+    target = out or Path(package_names(name)[0])
+    paths = new_plugin(name, kind, target)
+    if json_out:
+        print_json({"name": name, "kind": kind, "out": str(target), "files": [str(p) for p in paths]})
+        return
+    for p in paths:
+        console.print(f"wrote {p}", highlight=False)
+    console.print(
+        f"next: pip install -e {target} && amorctl plugins && python -m pytest {target / 'tests'}",
+        highlight=False,
+    )

@@ -311,6 +311,11 @@ def _train_here(
             on_iteration=None if json_out else display.on_iteration,
             on_note=lambda note: console.print(f"note: {note}", highlight=False, soft_wrap=True),
         )
+    except AmorError as err:  # the env checks the names; say which flag gave them
+        key = "[env] fixed_weights:"
+        if fixed_weights is not None and str(err).startswith(key):
+            raise AmorError("--fixed-weights:" + str(err).removeprefix(key)) from None
+        raise
     finally:
         display.stop()
     summary = {

@@ -99,7 +99,7 @@ def tune(
         tenv.close()
         raise AmorError(f"--video needs a character; run {run} has env kind {tenv.config.env.kind!r}")
     try:
-        w0 = parse_weights(weights, tenv.names) if weights is not None else None
+        w0 = parse_weights(weights, tenv.names, source="--weights") if weights is not None else None
         if live:
             from amorctl.tune.live import LiveSession, serve_live
 

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from amorctl import __version__
-from amorctl.core.contracts import Policy, tracking_view
+from amorctl.core.contracts import Policy, Snapshot, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
 from amorctl.deploy.bundle import (
@@ -109,6 +109,43 @@ def _env_facts(env: Any) -> EnvFacts:
         drop = character.standing_height / 3.0  # TrackingEnv's default fall rule
     future = [int(o) for o in getattr(inner, "future_frames", ())]
     return EnvFacts(layout, character, None if drop is None else float(drop), future)
+
+
+# ---------------------------------------------------------------------------- policy arrays
+
+
+def neutral_arrays(snap: Snapshot) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The exporter's array names from a policy's ``export_arrays()``.
+
+    Accepts the backend-neutral names (``normalizer/mean``, ``normalizer/scale``,
+    ``actor/<i>/weight``..., documented in :mod:`amorctl.plugins.backends.torch_cpu.policy`) and
+    the checkpoint-style names a backend may hand out instead (``normalizer.mean/var``,
+    ``actor.net.<k>.weight``..., with ``normalizer_eps`` and ``obs_clip`` in the meta; the jax-mjx
+    backend's), converting the latter exactly as the normalizer computes its scale.
+    """
+    arrays, meta = dict(snap.arrays), dict(snap.meta)
+    if "normalizer/mean" in arrays:
+        return arrays, meta
+    if "normalizer.mean" not in arrays or "normalizer.var" not in arrays:
+        raise AmorError("the policy's export_arrays() has no normalizer (normalizer/mean or normalizer.mean)")
+    eps = float(meta.get("normalizer_eps", 1e-2))
+    out = {
+        "normalizer/mean": np.asarray(arrays["normalizer.mean"]).astype(np.float32),
+        "normalizer/scale": (np.sqrt(np.asarray(arrays["normalizer.var"], dtype=np.float64)) + eps).astype(
+            np.float32
+        ),
+    }
+    for net in ("actor", "critic"):
+        index = sorted(
+            int(k.split(".")[2]) for k in arrays if k.startswith(f"{net}.net.") and k.endswith(".weight")
+        )
+        for i, k in enumerate(index):
+            out[f"{net}/{i}/weight"] = np.asarray(arrays[f"{net}.net.{k}.weight"], dtype=np.float32)
+            out[f"{net}/{i}/bias"] = np.asarray(arrays[f"{net}.net.{k}.bias"], dtype=np.float32)
+        meta[f"{net}_layers"] = len(index)
+    meta.setdefault("activation", "elu")
+    meta.setdefault("obs_clip", 10.0)
+    return out, meta
 
 
 # ---------------------------------------------------------------------------- the torch module
@@ -338,7 +375,7 @@ def export_bundle(
     run = RunDir.open(run_path)
     ckpt = run.checkpoint(iteration)
     policy: Policy = run.policy_of(ckpt)
-    snap = policy.export_arrays()
+    arrays, snap_meta = neutral_arrays(policy.export_arrays())
     names = list(policy.objectives)
     m, obs_dim = len(names), int(policy.obs_dim)
 
@@ -372,7 +409,7 @@ def export_bundle(
             k = list(groups).index("ref_frame")
             ref = (k, FRAME_JOINT_OFFSET, FRAME_JOINT_OFFSET + len(joints))
 
-    module = ExportModule(snap.arrays, snap.meta, pieces, action_mode, ref, low, high).eval()
+    module = ExportModule(arrays, snap_meta, pieces, action_mode, ref, low, high).eval()
     inputs = {
         name: {
             "shape": ["batch", sum(b - a for _, a, b in parts)],
@@ -390,7 +427,7 @@ def export_bundle(
         for n in out_names
     }
 
-    obs = parity_observations(snap.arrays["normalizer/mean"], snap.arrays["normalizer/scale"], m, samples)
+    obs = parity_observations(arrays["normalizer/mean"], arrays["normalizer/scale"], m, samples)
     want = reference_outputs(policy, obs, action_mode, ref_cols, low, high)
     feeds = split_observation(obs, groups)
 

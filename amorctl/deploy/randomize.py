@@ -20,12 +20,13 @@ dynamics. Every table and key is optional; a missing one means "no randomization
     [latency]
     extra_steps = [0, 2]        # whole control steps the PD targets arrive late (integers)
     [push]
-    velocity = [0.1, 0.4]       # m/s, horizontal root-velocity kick, random direction
-    interval = [2.0, 4.0]       # s between kicks
+    force = [3.0, 8.0]          # N, horizontal force on the root body, random direction
+    duration = [0.1, 0.2]       # s the force acts
+    interval = [3.0, 5.0]       # s between pushes
 
 Validation (AmorError naming the file and key): unknown tables or keys, a range that is not two
 finite numbers with low <= high, negative scales, a non-integer latency, a non-positive push
-interval. Format and rationale: docs/deploy.md.
+duration or interval. Format and rationale: docs/deploy.md.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ SCHEMA: dict[str, dict[str, tuple[float, bool]]] = {
     "motor_strength": {"scale": (0.0, False)},
     "armature": {"scale": (0.0, False)},
     "latency": {"extra_steps": (0.0, True)},
-    "push": {"velocity": (0.0, False), "interval": (1e-3, False)},
+    "push": {"force": (0.0, False), "duration": (1e-3, False), "interval": (1e-3, False)},
 }
 
 
@@ -78,7 +79,7 @@ class Randomization:
 @dataclass(frozen=True)
 class Sample:
     """One episode's dynamics. Per-link arrays are [nbody] (entry 0, the world, is unused),
-    per-joint ones [J]; ``latency_steps`` extra control steps; ``push_*`` the kick schedule."""
+    per-joint ones [J]; ``latency_steps`` extra control steps; ``push_*`` the ranges pushes draw from."""
 
     friction_scale: float
     mass_scale: np.ndarray
@@ -88,7 +89,8 @@ class Sample:
     strength_scale: np.ndarray
     armature_scale: np.ndarray
     latency_steps: int
-    push_velocity: tuple[float, float]
+    push_force: tuple[float, float]
+    push_duration: tuple[float, float]
     push_interval: tuple[float, float]
 
     def to_dict(self) -> dict[str, Any]:
@@ -160,7 +162,8 @@ def sample(rand: Randomization, rng: np.random.Generator, nbody: int, num_joints
         strength_scale=draw("motor_strength", "scale", 1.0, num_joints),
         armature_scale=draw("armature", "scale", 1.0, num_joints),
         latency_steps=int(rng.integers(int(lat_lo), int(lat_hi) + 1)),
-        push_velocity=rand.get("push", "velocity", 0.0),
+        push_force=rand.get("push", "force", 0.0),
+        push_duration=rand.get("push", "duration", 0.1),
         push_interval=rand.get("push", "interval", math.inf),
     )
 

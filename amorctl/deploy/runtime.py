@@ -16,7 +16,7 @@ not installed (tested with torch made unimportable). One control tick (docs/depl
    the hold for the rest of the episode;
 4. the targets are clamped to the joint ranges, delayed by the randomized extra latency, and
    the character is stepped ``physics_hz / control_hz`` physics steps with its actuator model;
-   pushes kick the root; a fall (root below the reference's by the fall drop) or a diverged
+   pushes (a horizontal force on the root body) act; a fall (root below the reference's by the fall drop) or a diverged
    simulation ends the episode.
 """
 
@@ -228,9 +228,7 @@ class Runtime:
     def _push_gap(self) -> float:
         lo, hi = self.dyn.push_interval
         return (
-            float(self.push_rng.uniform(lo, hi))
-            if np.isfinite(hi) and self.dyn.push_velocity[1] > 0
-            else np.inf
+            float(self.push_rng.uniform(lo, hi)) if np.isfinite(hi) and self.dyn.push_force[1] > 0 else np.inf
         )
 
     def run(
@@ -333,9 +331,12 @@ class Runtime:
             sent = self.pending[0]
             if t_now + 1e-9 >= self.next_push:
                 angle = self.push_rng.uniform(0.0, 2.0 * np.pi)
-                speed = self.push_rng.uniform(*self.dyn.push_velocity)
-                self.sim.kick(speed * np.array([np.cos(angle), np.sin(angle)]))
-                emit(Event(t_now, "push", f"{speed:.3f} m/s at {np.degrees(angle):.0f} deg"))
+                force = self.push_rng.uniform(*self.dyn.push_force)
+                duration = self.push_rng.uniform(*self.dyn.push_duration)
+                self.sim.push(force * np.array([np.cos(angle), np.sin(angle)]), duration)
+                emit(
+                    Event(t_now, "push", f"{force:.2f} N for {duration:.2f} s at {np.degrees(angle):.0f} deg")
+                )
                 self.next_push = t_now + self._push_gap()
             div = self.sim.step(sent, hold=hold)
             reached = self.ref_idx if hold else self.ref_idx + 1

@@ -9,7 +9,8 @@ MuJoCo position actuators holding the target for all substeps; servo characters:
 start between calls, the same end-effector readings (sensors of the last substep), so with
 nominal dynamics it follows ``amorctl tune``'s trajectory. Per episode it applies a
 :class:`~amorctl.deploy.randomize.Sample` to a copy of the model (friction, link masses and
-centres of mass, armature, PD gains, motor strength) and takes root-velocity kicks (pushes).
+centres of mass, armature, PD gains, motor strength) and applies pushes (a horizontal force on
+the root body for a number of physics steps, through ``xfrc_applied``).
 
 Imports only numpy, mujoco and torch-free amorctl modules. Shapes: J actuated joints, E end
 effectors, D frame length, nq/nv MuJoCo sizes.
@@ -64,6 +65,9 @@ class CharacterSim:
         self.joint_high = np.array([j.range[1] for j in spec.joints])
         self.model = m
         self.data = mujoco.MjData(m)
+        self.root_body = int(root)
+        self.push_force = np.zeros(2)
+        self.push_steps = 0
 
     # --- episodes ---------------------------------------------------------------------------
 
@@ -99,6 +103,7 @@ class CharacterSim:
         d.qpos[self.joint_qpos] = mot.joint_pos[frame]
         d.qvel[self.joint_dof] = mot.joint_vel[frame]
         self.warmstart = np.zeros(m.nv)
+        self.push_steps = 0
         self.ee_pos = mot.ee_pos[frame].copy()
         self.ee_quat = mot.ee_quat[frame].copy()
         self.ee_lin_vel = mot.ee_lin_vel[frame].copy()
@@ -127,6 +132,7 @@ class CharacterSim:
             for sub in range(self.substeps):
                 if sub == self.substeps - 1:
                     qv_prev = d.qvel.copy()
+                self._apply_push()
                 mujoco.mj_step(m, d)
             if hold:
                 m.actuator_biasprm[a, 2] += extra_kd
@@ -141,6 +147,7 @@ class CharacterSim:
                 d.ctrl[self.actuators] = tau[0] / self.gear
                 qv_prev = d.qvel.copy()
                 d.qacc_warmstart[:] = self.warmstart
+                self._apply_push()
                 mujoco.mj_step(m, d)
                 self.warmstart = (d.qvel - qv_prev) / dt
         sens = d.sensordata[: self.num_ee * 10].reshape(self.num_ee, 10)
@@ -156,9 +163,20 @@ class CharacterSim:
             self.warmstart[:] = 0.0
         return bool(diverged)
 
-    def kick(self, velocity_xy: np.ndarray) -> None:
-        """A push: add [2] m/s to the root's horizontal velocity."""
-        self.data.qvel[self.root_dof : self.root_dof + 2] += velocity_xy
+    def push(self, force_xy: np.ndarray, seconds: float) -> None:
+        """Push the root body with a horizontal force [2] N for ``seconds`` (whole physics steps,
+        at least one), starting with the next physics step."""
+        self.push_force = np.asarray(force_xy, dtype=np.float64)
+        self.push_steps = max(1, round(seconds / self.model.opt.timestep))
+
+    def _apply_push(self) -> None:
+        """Set this physics step's external force on the root body (zero when no push is on)."""
+        xfrc = self.data.xfrc_applied[self.root_body]
+        if self.push_steps > 0:
+            xfrc[:2] = self.push_force
+            self.push_steps -= 1
+        else:
+            xfrc[:2] = 0.0
 
     # --- state ------------------------------------------------------------------------------
 

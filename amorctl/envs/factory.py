@@ -49,5 +49,6 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
     if e.fixed_weights:
         from amorctl.envs.wrappers import FixedWeights
 
-        env = FixedWeights(env, parse_weights(e.fixed_weights, env.reward_space.names))
+        w = parse_weights(e.fixed_weights, env.reward_space.names, source="[env] fixed_weights")
+        env = FixedWeights(env, w)
     return env

@@ -146,15 +146,16 @@ def roll_condition(
         err += np.degrees(np.abs(view.joint_pos() - view.reference_joint_pos(view.reference_index()))).mean(
             -1
         )
-        if (t + 1) % opts.stride == 0 and t + 1 >= spec.window:
-            wins.append(hist.windows())
-            zs.append(final[:, latent].copy())
-            owners.append(np.arange(n))
+        if (t + 1) % opts.stride == 0:  # full windows only (amorctl.hlp.windows)
+            full = hist.full()
+            wins.append(hist.windows()[full])
+            zs.append(final[full][:, latent].copy())
+            owners.append(np.flatnonzero(full))
         done = np.flatnonzero(term | trunc)
         falls += int(term.sum())
         if len(done):
             hist.reset(done, spec.features(obs[done][:, proprio]))
-    if not wins:
+    if sum(len(w) for w in wins) == 0:
         raise AmorError(f"--hlp-seconds {opts.seconds}: too short for one {spec.window}-frame window")
     return ConditionData(
         label, weights_text, err / steps, np.concatenate(wins), np.concatenate(zs).astype(np.float32),

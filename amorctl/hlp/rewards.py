@@ -107,16 +107,19 @@ class DiscriminatorReward:
     def step(
         self, obs: np.ndarray, env_rewards: np.ndarray, final_obs: np.ndarray, ended: np.ndarray
     ) -> np.ndarray:
+        """r^D of the full windows; 0 while an env's window still holds padding (its first V - 1
+        steps), and those windows are not D's negatives (see :mod:`amorctl.hlp.windows`)."""
         self.history.push(self._features(final_obs))
+        full = self.history.full()
         windows, z = self.history.windows(), np.asarray(final_obs[:, self.latent], dtype=np.float32)
         logits = self.learner.logits(windows, z)
-        self._windows.append(windows)
-        self._z.append(z)
-        self._logits.append(logits)
+        self._windows.append(windows[full])
+        self._z.append(z[full])
+        self._logits.append(logits[full])
         done = np.flatnonzero(ended)
         if len(done):
             self.history.reset(done, self._features(obs[done]))
-        return reward_from_logits(logits, self.cfg.reward_clamp)
+        return np.where(full, reward_from_logits(logits, self.cfg.reward_clamp), 0.0).astype(np.float32)
 
     #: kinds of negatives in a batch (:meth:`batch`)
     POLICY, REPLAY, MISMATCHED = 0, 1, 2
@@ -156,9 +159,10 @@ class DiscriminatorReward:
 
     def update(self, rng: np.random.Generator) -> dict[str, float]:
         """k D steps on :meth:`batch` batches; then this rollout's windows join the replay buffer."""
-        if not self._windows:
-            return {}
         cfg = self.cfg
+        if not self._windows or sum(len(w) for w in self._windows) == 0:
+            self._windows, self._z, self._logits = [], [], []  # every window still warming up
+            return {}
         windows, z = np.concatenate(self._windows), np.concatenate(self._z)
         rollout_logits = np.concatenate(self._logits)
         sums: dict[str, float] = {}
@@ -182,6 +186,7 @@ class DiscriminatorReward:
         arrays = dict(learner.arrays)
         arrays.update({f"replay/{k}": v for k, v in replay.arrays.items()})
         arrays["history"] = self.history.buf.copy()
+        arrays["history_count"] = self.history.count.copy()
         return Snapshot(arrays, {"learner": learner.meta, "replay": replay.meta})
 
     def load(self, state: Snapshot) -> None:
@@ -189,3 +194,4 @@ class DiscriminatorReward:
         self.learner.load(a, state.meta["learner"])
         self.replay.load({k[7:]: v for k, v in a.items() if k.startswith("replay/")}, state.meta["replay"])
         self.history.buf[:] = a["history"]
+        self.history.count[:] = a["history_count"]

@@ -49,13 +49,17 @@ def run_hlp_tune(
         raise AmorError(f"--seconds must be a positive number, got {seconds}")
     steps = max(1, math.ceil(seconds / tenv.dt - 1e-9))
     tenv.restart()
-    records, raw_w, episode_t = [], [], []
+    records, raw_w, episode_t, qpos, ref_qpos = [], [], [], [], []
+    view = tenv.view
     for _ in range(steps):
         raw, w = hlp_weights(tenv, hlp, scales)
         episode_t.append(tenv.t)
         rec = tenv.step(w)
         records.append(rec)
         raw_w.append(raw)
+        if view is not None:  # simulator and reference poses, for videos
+            qpos.append(view.qpos()[0])
+            ref_qpos.append(view.reference_qpos(view.reference_index()[:1])[0])
         if rec.terminated and stop_on_fall:
             break
     stack = lambda name: np.stack([getattr(r, name) for r in records])  # noqa: E731
@@ -80,5 +84,7 @@ def run_hlp_tune(
         joint_names=tuple(tenv.view.joint_names) if tenv.view is not None else (),
         geoms=geom_table(model) if model is not None else [],
         episode_times=np.asarray(episode_t),
+        qpos=np.stack(qpos) if qpos else None,
+        ref_qpos=np.stack(ref_qpos) if ref_qpos else None,
     )
     return rollout, np.stack(raw_w)

@@ -7,8 +7,13 @@ motion latent the observation carries beside that state (the ``latent`` slice, z
 reference frame); dataset windows ending at frame f take ``z[f + 1]`` of the dataset itself (never
 recomputed), so both sides pair a window with the same latent.
 
-Padding: a window that would reach before the start of an episode (policy) or a clip (dataset)
-repeats its first frame.
+Only **full** windows are compared: dataset windows end at least V - 1 frames into their clip,
+and a policy window counts once its env has run V - 1 steps since its episode began (before
+that its first frame repeats; such windows get no reward and never reach the discriminator).
+Why: an episode starts in the reference state (RSI), so a padded policy window right after a
+reset is a copy of a padded dataset window, and a D trained on both hands out large rewards for
+being reset rather than for moving well. Clips shorter than V frames contribute padded windows
+only when no clip is long enough.
 """
 
 from __future__ import annotations
@@ -88,20 +93,28 @@ def observation_slices(layout: Mapping[str, object], latent_dim: int) -> tuple[s
 
 
 class WindowHistory:
-    """The last V frame features of each of N envs: [N, V, F], oldest first."""
+    """The last V frame features of each of N envs: ``buf`` [N, V, F], oldest first, and
+    ``count`` [N], how many real frames each window holds (at most V)."""
 
     def __init__(self, num_envs: int, spec: WindowSpec) -> None:
         self.spec = spec
         self.buf = np.zeros((num_envs, spec.window, spec.frame_features), dtype=np.float32)
+        self.count = np.zeros(num_envs, dtype=np.int64)
 
     def reset(self, ids: np.ndarray, feat: np.ndarray) -> None:
         """Start envs ``ids`` [k] anew: their window is ``feat`` [k, F] repeated V times."""
         self.buf[ids] = feat[:, None, :]
+        self.count[ids] = 1
 
     def push(self, feat: np.ndarray) -> None:
         """Append this step's features [N, F] to every env's window."""
         self.buf[:, :-1] = self.buf[:, 1:]
         self.buf[:, -1] = feat
+        self.count = np.minimum(self.count + 1, self.spec.window)
+
+    def full(self) -> np.ndarray:
+        """[N] bool: the window holds V real frames (no padding)."""
+        return self.count >= self.spec.window
 
     def windows(self) -> np.ndarray:
         """[N, V * F] float32 flat windows."""
@@ -129,10 +142,14 @@ class DatasetWindows:
         chosen = np.flatnonzero(lengths >= 2) if clips is None else np.asarray(clips, dtype=np.int64)
         if len(chosen) == 0:
             raise AmorError("no clip with at least 2 frames to draw dataset windows from")
-        # end frames f with a next frame f + 1 in the same clip (z[f + 1] pairs with the window)
+        # end frames f with a full window inside the clip and a next frame f + 1 in it (z[f + 1]
+        # pairs with the window); padded windows only if no chosen clip is long enough
+        v = spec.window
+        padded = not any(lengths[c] >= v + 1 for c in chosen)
         ends, clip_of, first = [], [], []
         for c in chosen:
-            f = np.arange(starts[c], starts[c] + lengths[c] - 1)
+            lo = starts[c] if padded else starts[c] + v - 1
+            f = np.arange(lo, starts[c] + lengths[c] - 1)
             ends.append(f)
             clip_of.append(np.full(len(f), c))
             first.append(np.full(len(f), starts[c]))

@@ -35,6 +35,8 @@ FORMAT = "amorctl-checkpoint/1"
 _NAME = re.compile(r"^iter_(\d+)\.json$")
 _TENSOR_NAME = re.compile(r"^[A-Za-z0-9_.-]+\.safetensors$")
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
+#: Key of the record's own SHA-256 (checkpoints written before it existed load without the check).
+META_HASH = "meta_sha256"
 _BIT_GENERATORS = {g.__name__: g for g in (PCG64, PCG64DXSM, Philox, SFC64, MT19937)}
 #: Keys of env / trainer state that hold clip indices: lists of ints (or None).
 _INDEX_LISTS = ("valid_clips", "env_clips", "clip_index", "clips")
@@ -57,6 +59,12 @@ def checkpoint_paths(directory: Path, iteration: int) -> tuple[Path, Path]:
     """(safetensors path, JSON path) of the checkpoint of ``iteration``."""
     stem = directory / f"iter_{iteration:06d}"
     return stem.with_suffix(".safetensors"), stem.with_suffix(".json")
+
+
+def record_sha256(record: dict[str, Any]) -> str:
+    """SHA-256 of a checkpoint's JSON record without its own hash (canonical JSON: sorted keys)."""
+    body = {k: v for k, v in record.items() if k != META_HASH}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def _sha256(path: Path) -> str:
@@ -89,6 +97,7 @@ def save_checkpoint(
             "sha256": _sha256(tensors_path),
         },
     }
+    record[META_HASH] = record_sha256(record)
     atomic_write_text(json_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
     return json_path
 
@@ -209,6 +218,10 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
     except RecursionError:
         raise AmorError(f"{json_path}: checkpoint metadata is nested too deeply") from None
     iteration = check_record(json_path, record)
+    if META_HASH in record and record[META_HASH] != record_sha256(record):
+        raise AmorError(
+            f"{json_path}: checkpoint metadata was altered (it does not match its recorded SHA-256)"
+        )
     info = record["tensors"]
     tensors_path = json_path.parent / info["file"]
     if not tensors_path.is_file():
@@ -230,8 +243,57 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
     env = None
     if record.get("env") is not None:
         env = Snapshot({k[4:]: v for k, v in arrays.items() if k.startswith("env/")}, record["env"])
-    meta = {k: v for k, v in record.items() if k not in ("trainer", "env", "tensors", "format")}
+    meta = {k: v for k, v in record.items() if k not in ("trainer", "env", "tensors", "format", META_HASH)}
     return Checkpoint(json_path, iteration, meta, trainer, env)
+
+
+def _like(path: Path, where: str, want: Any, got: Any) -> None:
+    """``got`` has the JSON structure of ``want``: the same keys, element and leaf types."""
+    if isinstance(want, dict):
+        if not isinstance(got, dict):
+            raise AmorError(f"{path}: {where} must be a table, got {type(got).__name__}")
+        if want and set(want) != set(got):
+            diff = sorted(set(want) ^ set(got), key=str)[0]
+            raise AmorError(f"{path}: {where}.{diff} is {'missing' if diff in want else 'unexpected'}")
+        for key in want:
+            _like(path, f"{where}.{key}", want[key], got[key])
+    elif isinstance(want, list):
+        if not isinstance(got, list):
+            raise AmorError(f"{path}: {where} must be a list, got {type(got).__name__}")
+        for i, item in enumerate(got):
+            if want:
+                _like(path, f"{where}[{i}]", want[min(i, len(want) - 1)], item)
+    elif want is None:
+        return
+    elif isinstance(want, bool | str):
+        if type(got) is not type(want):
+            raise AmorError(f"{path}: {where} = {got!r} must be a {type(want).__name__}")
+    elif isinstance(want, int):
+        if not _is_int(got):
+            raise AmorError(f"{path}: {where} = {got!r} must be an integer")
+    elif isinstance(want, float):  # noqa: SIM102 - one branch per JSON type
+        if isinstance(got, bool) or not isinstance(got, int | float) or not np.isfinite(got):
+            raise AmorError(f"{path}: {where} = {got!r} must be a finite number")
+
+
+def check_like(path: Path, where: str, expected: Snapshot, got: Snapshot) -> None:
+    """Check a loaded state against the state a fresh trainer or env of this run has: the same
+    JSON structure and types, and every expected array present with its shape and dtype (extra
+    arrays, such as optimizer moments a fresh trainer lacks, are allowed).
+
+    Raises:
+        AmorError: naming ``path`` and the first key that differs.
+    """
+    _like(path, where, expected.meta, got.meta)
+    for key, want in expected.arrays.items():
+        have = got.arrays.get(key)
+        if have is None:
+            raise AmorError(f"{path}: {where} array {key!r} is missing")
+        if have.shape != want.shape or have.dtype != want.dtype:
+            raise AmorError(
+                f"{path}: {where} array {key!r} is {have.dtype}{list(have.shape)}, "
+                f"this run needs {want.dtype}{list(want.shape)}"
+            )
 
 
 def check_against_config(ckpt: Checkpoint, config: TrainConfig, config_path: Path | str) -> None:

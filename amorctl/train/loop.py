@@ -38,6 +38,7 @@ from amorctl.train import distributed
 from amorctl.train.checkpoint import (
     Checkpoint,
     check_against_config,
+    check_like,
     checkpoint_paths,
     prune_checkpoints,
     save_checkpoint,
@@ -136,14 +137,18 @@ def _restore(
     same_world = saved_by == world.size
     try:
         # this rank's part; with another world size every rank takes rank 0's networks and RNG
-        trainer.load_state_dict(distributed.rank_snapshot(ckpt.trainer, world.rank if same_world else 0))
+        trainer_state = distributed.rank_snapshot(ckpt.trainer, world.rank if same_world else 0)
+        check_like(ckpt.path, "trainer", trainer.state_dict(), trainer_state)
+        trainer.load_state_dict(trainer_state)
         if not same_world and on_note is not None:
             on_note(
                 f"{ckpt.path.name} was saved by {saved_by} process(es), this run has {world.size}: "
                 "networks, optimizer and normalizer continue, the envs restart from fresh episodes"
             )
         if same_world and ckpt.env is not None and isinstance(env, SnapshotEnv):
-            env.set_state(distributed.rank_snapshot(ckpt.env, world.rank))
+            env_state = distributed.rank_snapshot(ckpt.env, world.rank)
+            check_like(ckpt.path, "env", env.get_state(), env_state)
+            env.set_state(env_state)
         else:  # the env cannot snapshot: continue from fresh episodes, deterministically seeded
             trainer.reset_env(config.run.seed + ckpt.iteration)
     except AmorError:
@@ -210,6 +215,13 @@ def train_run(
             )
         if world.is_main and out.exists() and not out.is_dir():
             raise AmorError(f"{out}: --out must be a directory, not a file")
+    if ckpt is not None and world.distributed:
+        seen = world.all_gather(ckpt.iteration)
+        if len(set(seen)) > 1:
+            raise distributed.DistributedError(
+                f"--resume: the ranks see different newest checkpoints in {out} (iterations {seen}); "
+                "every rank must see the same run directory (a shared filesystem)"
+            )
     created = not out.exists()
     saved: list[Path] = []  # checkpoints this call wrote
     try:
@@ -261,12 +273,12 @@ def _train(
         trainer_state = distributed.gather_snapshot(trainer.state_dict(), world)  # all ranks' parts
         if env_state is not None:
             env_state = distributed.gather_snapshot(env_state, world)
-        if trainer_state is None:  # not rank 0: rank 0 writes it
-            return checkpoint_paths(run.checkpoint_dir, iteration)[1]
+        if trainer_state is None:  # not rank 0: wait until rank 0 has written it
+            return Path(world.broadcast(str(checkpoint_paths(run.checkpoint_dir, iteration)[1])))
         path = save_checkpoint(run.checkpoint_dir, iteration, meta, trainer_state, env_state)
         prune_checkpoints(run.checkpoint_dir, config.run.keep_checkpoints)
         saved.append(path)
-        return path
+        return Path(world.broadcast(str(path)))
 
     metrics_log = (
         _metrics_log(out, config, start if ckpt is not None else None)

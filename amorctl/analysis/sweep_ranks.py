@@ -1,0 +1,144 @@
+"""Sweeps split across the ranks of a ``torchrun`` launch, gathered at rank 0.
+
+``amorctl pareto`` and ``amorctl evaluate --sweep`` under torchrun call these instead of
+:func:`~amorctl.analysis.sweeps.pareto_sweep` / :func:`~amorctl.analysis.sweeps.weight_sweep`.
+Each rank evaluates its share in its own batched rollout, seeded with its rank seed (rank 0 keeps
+``seed``, :func:`amorctl.train.distributed.rank_seed`), and rank 0 puts the per-row results back
+in the 1-process order and computes the summaries over all of them, so it writes the same files
+with the same layout as a 1-process sweep. Without a process group they are the plain sweeps.
+
+- Pareto: the K weight vectors are cut into contiguous blocks (:func:`rank_rows`); every rank
+  also evaluates the equal-weights vector, rank 0's is reported.
+- Weight sweep: the E episodes per level are cut into blocks; the returns ``[L, E]`` are
+  concatenated along the episodes, the Spearman correlation is computed over all of them.
+
+Each block's episodes are the ones a 1-process sweep of that block with the rank's seed gives;
+they differ from the full 1-process sweep's episodes only in their random starts (docs/distributed.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from amorctl.analysis.front import HypervolumeMethod, summarize_front
+from amorctl.analysis.sweeps import (
+    DEFAULT_SWEEP_LEVELS,
+    ParetoGroup,
+    ParetoSweep,
+    WeightSweep,
+    pareto_sweep,
+    weight_sweep,
+)
+from amorctl.core.config import TrainConfig
+from amorctl.core.errors import AmorError
+from amorctl.train.distributed import World, current, rank_rows, rank_seed
+
+
+def pareto_sweep_ranks(
+    policy: Any,
+    config: TrainConfig,
+    weights: np.ndarray,
+    *,
+    reference_point: Sequence[float] | None = None,
+    hv_method: HypervolumeMethod = "auto",
+    seed: int = 0,
+    world: World | None = None,
+    **options: Any,
+) -> ParetoSweep | None:
+    """:func:`~amorctl.analysis.sweeps.pareto_sweep` with the K weight vectors split over ranks.
+
+    Returns the whole sweep at rank 0, None on the other ranks (``options``: the remaining
+    keyword arguments of ``pareto_sweep``, e.g. ``motions``, ``episodes``, ``sampling``).
+
+    Raises:
+        AmorError: fewer weight vectors than ranks, or what ``pareto_sweep`` raises (on every rank).
+    """
+    world = world or current()
+    kwargs = dict(reference_point=reference_point, hv_method=hv_method, **options)
+    if not world.distributed:
+        return pareto_sweep(policy, config, weights, seed=seed, **kwargs)
+    w = np.asarray(weights, dtype=np.float64)
+    with world.agreeing():
+        if w.ndim != 2 or w.shape[0] < world.size:
+            raise AmorError(f"{world.size} processes need at least {world.size} weight vectors, got {len(w)}")
+        if world.rank != 0:
+            kwargs["on_step"] = None  # progress of rank 0's block only
+        part = pareto_sweep(
+            policy, config, w[rank_rows(len(w), world)], seed=rank_seed(seed, world.rank), **kwargs
+        )
+    rows = [(g.points, g.points_std, g.survival) for g in part.groups]
+    parts = world.gather((rows, part.num_envs, part.env_steps, part.seconds))
+    if parts is None:
+        return None
+    groups = []
+    for gi, grp in enumerate(part.groups):
+        points, points_std, survival = (np.concatenate([p[0][gi][j] for p in parts]) for j in range(3))
+        summary = summarize_front(points, w, reference_point, hv_method=hv_method, seed=seed)
+        groups.append(ParetoGroup(grp.motion, points, points_std, survival, grp.equal_point, summary))
+    return dataclasses.replace(
+        part,
+        weights=w,
+        groups=groups,
+        num_envs=sum(p[1] for p in parts),
+        env_steps=sum(p[2] for p in parts),
+        seconds=max(p[3] for p in parts),
+    )
+
+
+def weight_sweep_ranks(
+    policy: Any,
+    config: TrainConfig,
+    objective: str,
+    *,
+    levels: Sequence[float] = DEFAULT_SWEEP_LEVELS,
+    episodes: int = 16,
+    seed: int = 0,
+    world: World | None = None,
+    **options: Any,
+) -> WeightSweep | None:
+    """:func:`~amorctl.analysis.sweeps.weight_sweep` with the episodes per level split over ranks.
+
+    Returns the whole sweep at rank 0, None on the other ranks (``options``: ``motions``,
+    ``on_step``).
+
+    Raises:
+        AmorError: fewer episodes than ranks, or what ``weight_sweep`` raises (on every rank).
+    """
+    from scipy import stats
+
+    world = world or current()
+    if not world.distributed:
+        return weight_sweep(policy, config, objective, levels=levels, episodes=episodes, seed=seed, **options)
+    with world.agreeing():
+        if episodes < world.size:
+            raise AmorError(f"{world.size} processes need --episodes >= {world.size}, got {episodes}")
+        if world.rank != 0:
+            options["on_step"] = None
+        mine = len(range(episodes)[rank_rows(episodes, world)])
+        part = weight_sweep(
+            policy,
+            config,
+            objective,
+            levels=levels,
+            episodes=mine,
+            seed=rank_seed(seed, world.rank),
+            **options,
+        )
+    parts = world.gather((part.returns, part.survival * mine, mine))
+    if parts is None:
+        return None
+    returns = np.concatenate([p[0] for p in parts], axis=1)  # [L, E]
+    survival = sum(p[1] for p in parts) / episodes
+    level_of = np.repeat(part.levels, episodes)
+    flat = returns.ravel()
+    ok = np.isfinite(flat)
+    rho, p_value = math.nan, math.nan
+    if ok.sum() >= 3 and np.ptp(flat[ok]) > 0:
+        res = stats.spearmanr(level_of[ok], flat[ok])
+        rho, p_value = float(res.statistic), float(res.pvalue)
+    return WeightSweep(part.objective, part.levels, returns, survival, rho, p_value)
