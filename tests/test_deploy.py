@@ -310,11 +310,24 @@ def test_randomization_is_seeded_validated_and_changes_the_dynamics(bundle_dir: 
     assert a.dynamics != other.dynamics and a.dynamics["latency_steps"] in (0, 1)
 
     pushy = tmp_path / "push.toml"
-    pushy.write_text(
-        "[push]\nvelocity = [0.3, 0.3]\ninterval = [0.2, 0.2]\n[latency]\nextra_steps = [2, 2]\n"
+    pushy.write_text("[push]\nforce = [30, 30]\nduration = [0.1, 0.1]\ninterval = [0.2, 0.2]\n")
+    res = Runtime(b, randomization=load_randomization(pushy)).run(
+        w, seconds=0.6, stop_on_fall=False, record=True
     )
-    res = Runtime(b, randomization=load_randomization(pushy)).run(w, seconds=0.5, stop_on_fall=False)
-    assert sum(e.kind == "push" for e in res.events) == 2 and res.dynamics["latency_steps"] == 2
+    assert sum(e.kind == "push" for e in res.events) == 2
+    qp, qn = np.array([r.qpos for r in res.records]), np.array([r.qpos for r in nominal.records])
+    assert np.array_equal(qp[:10], qn[:10])  # identical until the first push at 0.2 s
+    assert np.abs(qp[10:15] - qn[10:15]).max() > 1e-3
+
+    late = tmp_path / "late.toml"
+    late.write_text("[latency]\nextra_steps = [2, 2]\n")
+    res = Runtime(b, randomization=load_randomization(late)).run(
+        w, seconds=0.3, stop_on_fall=False, record=True
+    )
+    qd = np.array([r.qpos for r in res.records])
+    assert res.dynamics["latency_steps"] == 2
+    assert np.array_equal(qd[:2], qn[:2])  # the first two ticks hold the initial pose either way
+    assert np.abs(qd - qn[:15]).max() > 1e-4
 
     for text, msg in (
         ("[gravity]\nscale = [1, 2]\n", "unknown table"),
@@ -324,6 +337,7 @@ def test_randomization_is_seeded_validated_and_changes_the_dynamics(bundle_dir: 
         ("[mass]\nscale = 1.0\n", "range"),
         ("[latency]\nextra_steps = [0, 1.5]\n", "whole control steps"),
         ("[push]\ninterval = [0, 1]\n", ">= 0.001"),
+        ("[push]\nvelocity = [0, 1]\n", "unknown key"),
         ("[mass\n", "TOML"),
     ):
         bad = tmp_path / "bad.toml"

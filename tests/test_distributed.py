@@ -57,7 +57,7 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def launch(mode: str, directory: Path, world: int = 2) -> list[subprocess.Popen]:
+def launch(mode: str, directory: Path, world: int = 2, timeout: float = TIMEOUT_S) -> list[subprocess.Popen]:
     """Start ``world`` ranks of this file's ``mode`` (stdout/stderr to files in ``directory``)."""
     port = free_port()
     procs = []
@@ -72,7 +72,7 @@ def launch(mode: str, directory: Path, world: int = 2) -> list[subprocess.Popen]
             "MASTER_PORT": str(port),
             "GLOO_SOCKET_IFNAME": "lo",
             "OMP_NUM_THREADS": "1",
-            distributed.TIMEOUT_ENV: str(TIMEOUT_S),
+            distributed.TIMEOUT_ENV: str(timeout),
             "PYTHONPATH": str(ROOT),
         }
         out = (directory / f"rank{rank}.out").open("w")
@@ -461,6 +461,35 @@ def test_nproc_launches_torchrun_and_only_rank_0_reports(tmp_path: Path) -> None
     assert done.stdout.count('"end_iteration"') == 1  # rank 1 printed nothing
     ckpt = load_checkpoint(out / "checkpoints/iter_000003.json")
     assert ckpt.trainer.meta[distributed.WORLD_KEY] == 2 and len(rows(out)) == 3
+
+    # Ctrl-C (SIGINT to the terminal's process group): the ranks stop together and checkpoint
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "amorctl", "train", "--out", str(out), "--resume", "--iterations", "100000",
+         "--nproc", "2", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+    )  # fmt: skip
+    _wait_rows(out, 6, [proc])
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0, err
+    iteration = list_checkpoints(out / "checkpoints")[-1][0]
+    assert iteration >= 6 and len(rows(out)) == iteration, err
+
+
+@pytest.mark.slow
+def test_a_hung_rank_makes_the_other_fail_after_the_timeout(tmp_path: Path) -> None:
+    _long_run(tmp_path)
+    procs = launch("cli", tmp_path, timeout=5.0)
+    _wait_rows(tmp_path / "run", 2, procs)
+    procs[1].send_signal(signal.SIGSTOP)  # alive, silent
+    stopped = time.monotonic()
+    try:
+        code = procs[0].wait(timeout=60)
+    finally:
+        procs[1].kill()
+    waited = time.monotonic() - stopped
+    assert code != 0 and 2.0 < waited < 30.0, (code, waited)
+    assert "another rank died or stopped answering" in (tmp_path / "rank0.err").read_text()
 
 
 # ---------------------------------------------------------------------------- rank entry point

@@ -249,3 +249,23 @@ def test_live_hlp_session_sliders_multiply_the_hlps_weights(tracking_run: Path, 
         assert rec.weights[0] == 0 and rec.weights[6] > raw[6]
     finally:
         tenv.close()
+
+
+def test_decision_interval_holds_w_for_k_control_steps(toy_run: Path, tmp_path: Path) -> None:
+    from amorctl.hlp.rewards import ObjectiveReward
+    from amorctl.hlp.run import setup
+    from amorctl.hlp.trainer import HlpTrainer
+
+    config = tiny(env={"decision_interval": 3}, discriminator={"reward": "objective:right"})
+    s = setup(toy_run, config)
+    trainer = HlpTrainer(s.env, s.llp, config, ObjectiveReward(0))
+    seen: list[np.ndarray] = []
+    step = trainer.llp_step
+    trainer.llp_step = lambda w: (seen.append(w.copy()), step(w))[1]  # type: ignore[method-assign]
+    m = trainer.iteration()
+    assert m["env_steps"] == 3 * 6 * 4  # k * num_steps * num_envs
+    assert len(seen) == 18
+    for block in range(6):
+        held = seen[3 * block : 3 * block + 3]
+        assert all(np.array_equal(held[0], w) for w in held)
+    assert not np.array_equal(seen[0], seen[3])

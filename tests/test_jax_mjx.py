@@ -286,3 +286,56 @@ def test_plugins_list_jax_mjx_and_train_without_the_extra_names_it(tmp_path) -> 
     assert "amorctl[jax]" in proc.stderr and "jax" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "r").exists()  # nothing written
+
+
+# ---------------------------------------------------------------------------- devices
+TWO_DEVICE_SCRIPT = r"""
+import json, sys
+import jax, numpy as np
+from amorctl.core.config import TrainConfig, override
+from amorctl.envs.toy import ToyTradeoffEnv
+from amorctl.plugins.backends.jax_mjx import JaxMjxBackend, devices
+from amorctl.plugins.backends.jax_mjx.networks import params_to_arrays
+
+assert jax.device_count() == 2, jax.devices()
+config = override(
+    TrainConfig(), env__kind="toy", env__num_envs=32, network__actor_hidden=[16, 16],
+    network__critic_hidden=[16, 16], ppo__num_steps=8, ppo__num_epochs=2, ppo__num_minibatches=3,
+    ppo__learning_rate=3e-3, run__tensorboard=False,
+)
+results = {}
+for count in (1, 2):
+    mesh = devices.local_mesh(count)
+    devices.local_mesh = lambda num_devices=None, _m=mesh: _m  # the trainer's mesh
+    env = ToyTradeoffEnv(32, max_steps=20, seed=0)
+    trainer = JaxMjxBackend().make_trainer(env, config)
+    assert trainer.mesh.size == count
+    metrics = [trainer.iteration() for _ in range(2)]
+    results[count] = {
+        "params": {k: v.tolist() for k, v in params_to_arrays(trainer.params).items()},
+        "loss": [m["loss/total"] for m in metrics],
+        "sharding": str(trainer.state.params["actor"]["log_std"].sharding),
+    }
+print(json.dumps(results))
+"""
+
+
+def test_two_device_update_equals_the_one_device_update() -> None:
+    """XLA_FLAGS=--xla_force_host_platform_device_count=2: envs and batch split over 2 CPU
+    devices give the one-device iterations (same rollout, same update) within float32 rounding."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    proc = subprocess.run(
+        [sys.executable, "-c", TWO_DEVICE_SCRIPT], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    one, two = out["1"], out["2"]
+    np.testing.assert_allclose(two["loss"], one["loss"], rtol=1e-5, atol=1e-6)
+    for key, value in one["params"].items():
+        np.testing.assert_allclose(np.array(two["params"][key]), np.array(value), atol=1e-5, err_msg=key)
+    assert "envs" not in one["sharding"]  # parameters are replicated

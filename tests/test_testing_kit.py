@@ -72,3 +72,13 @@ def test_pytest_plugin_fixtures_register_a_character(register_character, amorctl
     register_character(spec)
     assert get_registry().character("biped20-copy") is spec
     assert "biped20-copy" in amorctl_registry.names("character")
+
+
+@pytest.mark.slow
+def test_jax_mjx_backend_meets_the_contract(tmp_path: Path) -> None:
+    """About 150 s on 2 CPU cores (XLA compilation): kept out of the default run."""
+    registry = get_registry()
+    if "jax-mjx" not in registry.names("backend"):
+        pytest.skip("jax-mjx backend not installed (pip install amorctl[jax])")
+    spec = _character("biped20")
+    check_backend(registry.backend("jax-mjx"), spec, tiny_dataset(spec, tmp_path / "ds.mcap"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import signal
 import subprocess
 import sys
 import time
@@ -271,7 +272,7 @@ def train(
     with distributed.session() as world:
         if world.distributed and not resume:
             out = world.broadcast(out)  # the default name has a time stamp: rank 0's
-        _train_here(config, out, resume, json_out, world)
+        _train_here(config, out, resume, json_out, world, fixed_weights)
 
 
 def _launch(nproc: int, args: list[str]) -> int:
@@ -281,14 +282,27 @@ def _launch(nproc: int, args: list[str]) -> int:
         "-m", "amorctl", "train", *args,
     ]  # fmt: skip
     console.print(f"launching {nproc} processes: {' '.join(command[1:])}", highlight=False, soft_wrap=True)
+    proc = subprocess.Popen(command)
+    # Ctrl-C reaches torchrun too (same process group), SIGTERM is passed on: torchrun forwards
+    # either to the ranks, which stop after the same iteration and checkpoint; wait for that.
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: proc.send_signal(signal.SIGTERM))
     try:
-        return subprocess.run(command, check=False).returncode
-    except KeyboardInterrupt:  # torchrun forwards the signal to the ranks; they checkpoint and stop
-        return 130
+        while True:
+            try:
+                return proc.wait()
+            except KeyboardInterrupt:
+                continue
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _train_here(
-    config: TrainConfig, out: Path, resume: bool, json_out: bool, world: distributed.World
+    config: TrainConfig,
+    out: Path,
+    resume: bool,
+    json_out: bool,
+    world: distributed.World,
+    fixed_weights: str | None,
 ) -> None:
     """Train in this process (one rank under torchrun); rank 0 alone prints."""
     if not world.is_main:

@@ -16,8 +16,8 @@ not installed (tested with torch made unimportable). One control tick (docs/depl
    the hold for the rest of the episode;
 4. the targets are clamped to the joint ranges, delayed by the randomized extra latency, and
    the character is stepped ``physics_hz / control_hz`` physics steps with its actuator model;
-   pushes (a horizontal force on the root body) act; a fall (root below the reference's by the fall drop) or a diverged
-   simulation ends the episode.
+   pushes (a horizontal force on the root body) act; a fall (root below the reference's by the
+   fall drop) or a diverged simulation ends the episode.
 """
 
 from __future__ import annotations

@@ -93,7 +93,7 @@ class DiscriminatorConfig:
     grad_penalty: float = _doc(5.0, "c_gp, gradient penalty on dataset samples")
     logit_l2: float = _doc(0.01, "L2 on the logit layer's weights")
     weight_decay: float = _doc(1e-4, "L2 on every weight of D (added to the loss)")
-    learning_rate: float = _doc(1e-4, "Adam learning rate of D")
+    learning_rate: float = _doc(5e-5, "Adam learning rate of D")
     steps_per_iteration: int = _doc(4, "k discriminator steps per PPO iteration")
     batch_size: int = _doc(256, "dataset windows per D step (negatives: as many)")
     replay_size: int = _doc(20000, "capacity of the replay buffer of policy windows")

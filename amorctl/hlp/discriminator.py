@@ -187,12 +187,15 @@ class DiscriminatorLearner:
     def step(
         self, pos: tuple[np.ndarray, np.ndarray], neg: tuple[np.ndarray, np.ndarray], update_norm: bool = True
     ) -> dict[str, float]:
-        """One Adam step on a batch; the normalizer first folds in the dataset windows (D's inputs
-        are measured in the dataset's own statistics). Returns loss terms, accuracies, mean logits."""
+        """One Adam step on a batch; the normalizer first folds in the batch's windows, dataset and
+        negatives alike (as AMP's input normalizer sees both: with dataset statistics alone, a
+        feature that barely varies in the dataset puts every policy window many standard
+        deviations away, and D separates the classes on it at once). Returns loss terms,
+        accuracies, mean logits."""
         pos_t = (torch.as_tensor(pos[0]), torch.as_tensor(pos[1]))
         neg_t = (torch.as_tensor(neg[0]), torch.as_tensor(neg[1]))
         if update_norm:
-            self.disc.norm.update(pos_t[0])
+            self.disc.norm.update(torch.cat([pos_t[0], neg_t[0]]))
         terms = discriminator_loss(
             self.disc, pos_t, neg_t, self.grad_penalty, self.logit_l2, self.weight_decay
         )

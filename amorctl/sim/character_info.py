@@ -31,6 +31,7 @@ def describe_character(spec: CharacterSpec) -> dict[str, Any]:
         "standing_height": spec.standing_height,
         "min_standing_height": spec.min_standing_height,
         "scale_profile": spec.scale_profile,
+        "add_floor": spec.add_floor,
         "actuator_model": asdict(spec.actuator),
         "joints": [
             {
@@ -41,6 +42,10 @@ def describe_character(spec: CharacterSpec) -> dict[str, Any]:
                 "kp": j.kp,
                 "kd": j.kd,
                 "torque_limit": j.torque_limit,
+                # what the compiled model simulates (the spec's value when it states one)
+                "armature": float(model.dof_armature[model.jnt_dofadr[model.joint(j.name).id]]),
+                "friction_coulomb": float(model.dof_frictionloss[model.jnt_dofadr[model.joint(j.name).id]]),
+                "friction_viscous": float(model.dof_damping[model.jnt_dofadr[model.joint(j.name).id]]),
             }
             for j in spec.joints
         ],

@@ -43,9 +43,10 @@ _EE_SENSORS = (
 _GROUND_TYPES = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
 
 
-def ee_sensor_name(body: str, quantity: str) -> str:
-    """Name of amorctl's end-effector sensor (``quantity``: pos | quat | linvel)."""
-    return f"{SENSOR_PREFIX}{body}:{quantity}"
+def ee_sensor_name(index: int, body: str, quantity: str) -> str:
+    """Name of amorctl's sensor of end effector ``index`` (``quantity``: pos | quat | linvel); the
+    index keeps names unique when a body is listed twice."""
+    return f"{SENSOR_PREFIX}ee{index}:{body}:{quantity}"
 
 
 def torque_sensor_name(joint: str) -> str:
@@ -203,10 +204,10 @@ def add_tracking_sensors(
 ) -> None:
     """Append amorctl's named sensors: per end effector ``framepos``, ``framequat``, ``framelinvel``
     (world frame, body frame origin), and for PD characters one ``actuatorfrc`` per actuated joint."""
-    for body in character.end_effectors:
+    for i, body in enumerate(character.end_effectors):
         for quantity, kind in _EE_SENSORS:
             s = spec.add_sensor()
-            s.name = ee_sensor_name(body, quantity)
+            s.name = ee_sensor_name(i, body, quantity)
             s.type = kind
             s.objtype = mujoco.mjtObj.mjOBJ_XBODY
             s.objname = body
@@ -260,8 +261,8 @@ def sensor_addresses(model: mujoco.MjModel, character: CharacterSpec) -> SensorA
 
     widths = {"pos": 3, "quat": 4, "linvel": 3}
     rows = [
-        np.concatenate([adr(ee_sensor_name(body, q), w) for q, w in widths.items()])
-        for body in character.end_effectors
+        np.concatenate([adr(ee_sensor_name(i, body, q), w) for q, w in widths.items()])
+        for i, body in enumerate(character.end_effectors)
     ]
     ee = np.array(rows, dtype=np.int64).reshape(len(character.end_effectors), 10)
     torque = (

@@ -1,0 +1,172 @@
+"""Model files as they come (issue 16): sensors by name, spec gains applied, a floor, per-joint
+armature and friction, mesh-accurate lowest points, clear refusals."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import ActuatorModel, CharacterSpec, JointSpec
+from amorctl.sim.batch_sim import BatchSim
+from amorctl.sim.geom_bottom import geom_lowest_z
+from amorctl.sim.model import load_model
+from amorctl.sim.prepare import FLOOR_NAME, ee_sensor_name, sensor_addresses
+
+#: A two-link "robot" with its own IMU sensors declared before anything of amorctl's, position
+#: actuators whose gains differ from the spec's, joint armature and friction, and no floor.
+MJCF = """
+<mujoco>
+  <default><joint armature="0.02" frictionloss="0.3" damping="0.5"/></default>
+  <worldbody>
+    <body name="base" pos="0 0 1">
+      <freejoint/>
+      <site name="imu"/>
+      <geom type="box" size="0.1 0.1 0.1" mass="2"/>
+      <body name="arm" pos="0 0 -0.2">
+        <joint name="hip" axis="0 1 0" range="-1 1" actuatorfrcrange="-3 3"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/>
+        <body name="foot" pos="0 0 -0.35">
+          <joint name="ankle" axis="1 0 0" range="-0.5 0.5"/>
+          <geom type="sphere" size="0.04"/>
+        </body>
+      </body>
+      <body name="hand" pos="0.2 0 0"><geom type="sphere" size="0.02"/></body>
+    </body>
+  </worldbody>
+  <sensor>
+    <gyro site="imu"/>
+    <accelerometer site="imu"/>
+    <framequat objtype="site" objname="imu"/>
+  </sensor>
+  <actuator>
+    <position name="hip" joint="hip" kp="10" kv="1"/>
+    <position name="ankle_motor" joint="ankle" kp="5" forcerange="-2 2"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def spec_for(path: Path, **kw) -> CharacterSpec:
+    base = CharacterSpec(
+        name="twolink",
+        description="test",
+        mjcf_path=path,
+        root_body="base",
+        joints=(
+            JointSpec("hip", "lower", (-1.0, 1.0), kp=40.0, kd=4.0, torque_limit=20.0, armature=0.1),
+            JointSpec("ankle", "feet", (-0.5, 0.5), kp=30.0, kd=3.0, torque_limit=15.0, friction_coulomb=0.0),
+        ),
+        end_effectors=("hand", "hand", "foot", "foot"),
+        actuator=ActuatorModel(kind="pd"),
+        standing_height=1.0,
+        min_standing_height=0.5,
+        keypoints={"root": "base", "head": "base", "left_hand": "hand", "right_hand": "hand",
+                   "left_foot": "foot", "right_foot": "foot"},
+    )  # fmt: skip
+    return dataclasses.replace(base, **kw)
+
+
+@pytest.fixture
+def model_file(tmp_path: Path) -> Path:
+    path = tmp_path / "twolink.xml"
+    path.write_text(MJCF)
+    return path
+
+
+def test_spec_gains_limits_and_joint_properties_are_applied(model_file: Path) -> None:
+    m = load_model(spec_for(model_file))
+    hip, ankle = m.actuator("hip").id, m.actuator("ankle_motor").id  # the ankle's found by transmission
+    np.testing.assert_allclose(m.actuator_gainprm[[hip, ankle], 0], [40.0, 30.0])
+    np.testing.assert_allclose(m.actuator_biasprm[[hip, ankle], 1:3], [[-40.0, -4.0], [-30.0, -3.0]])
+    np.testing.assert_allclose(m.actuator_forcerange[[hip, ankle]], [[-20, 20], [-15, 15]])
+    assert m.actuator_forcelimited[[hip, ankle]].all()
+    assert not m.jnt_actfrclimited[m.joint("hip").id]  # the file's ±3 N·m would have capped the spec's 20
+    dof = {j: m.jnt_dofadr[m.joint(j).id] for j in ("hip", "ankle")}
+    assert m.dof_armature[dof["hip"]] == pytest.approx(0.1)  # stated: written
+    assert m.dof_armature[dof["ankle"]] == pytest.approx(0.02)  # None: the file's
+    assert m.dof_frictionloss[dof["ankle"]] == 0.0 and m.dof_frictionloss[dof["hip"]] == pytest.approx(0.3)
+
+
+def test_a_floor_is_added_only_when_missing_and_asked(model_file: Path) -> None:
+    m = load_model(spec_for(model_file))
+    assert m.geom(FLOOR_NAME).type == mujoco.mjtGeom.mjGEOM_PLANE
+    off = load_model(spec_for(model_file, add_floor=False))
+    assert mujoco.mj_name2id(off, mujoco.mjtObj.mjOBJ_GEOM, FLOOR_NAME) == -1
+    with_floor = model_file.with_name("floor.xml")
+    with_floor.write_text(
+        MJCF.replace("<worldbody>", '<worldbody><geom name="ground" type="plane" size="5 5 .1"/>')
+    )
+    m2 = load_model(spec_for(with_floor))
+    assert mujoco.mj_name2id(m2, mujoco.mjtObj.mjOBJ_GEOM, FLOOR_NAME) == -1
+
+
+def test_sensors_are_read_at_their_own_addresses(model_file: Path) -> None:
+    spec = spec_for(model_file)
+    sim = BatchSim(spec, 2, nthread=1)
+    adr = sensor_addresses(sim.model, spec)
+    assert adr.ee[0, 0] == 10  # after the file's gyro (3), accelerometer (3), framequat (4)
+    assert sim.model.sensor(ee_sensor_name(2, "foot", "pos")).adr[0] == adr.ee[2, 0]
+    out = None
+    for _ in range(5):
+        out = sim.step(np.zeros((2, 2)))
+    data = mujoco.MjData(sim.model)
+    data.qpos[:] = sim.qpos[0]
+    data.qvel[:] = sim.qvel[0]
+    mujoco.mj_kinematics(sim.model, data)
+    # Sensors are computed at the start of the last substep: within one substep of motion.
+    np.testing.assert_allclose(out.ee_pos[0, 2], data.xpos[sim.model.body("foot").id], atol=0.02)
+    assert np.abs(out.ee_quat[0]).max() <= 1.0 + 1e-9
+    np.testing.assert_allclose(np.linalg.norm(out.ee_quat[0], axis=-1), 1.0, atol=1e-9)
+    sim.close()
+
+
+def test_missing_joint_missing_actuator_and_wrong_actuator_type_are_refused(model_file: Path) -> None:
+    spec = spec_for(model_file)
+    bad = dataclasses.replace(
+        spec, joints=(*spec.joints[:1], dataclasses.replace(spec.joints[1], name="knee"))
+    )
+    with pytest.raises(
+        AmorError, match=r"twolink\.xml: character 'twolink' names joint\(s\) the model lacks: knee"
+    ):
+        load_model(bad)
+    no_act = model_file.with_name("noact.xml")
+    no_act.write_text(
+        MJCF.replace('<position name="ankle_motor" joint="ankle" kp="5" forcerange="-2 2"/>', "")
+    )
+    with pytest.raises(AmorError, match=r"noact\.xml: no actuator drives joint\(s\) ankle"):
+        load_model(spec_for(no_act))
+    motor = model_file.with_name("motor.xml")
+    motor.write_text(
+        MJCF.replace('<position name="hip" joint="hip" kp="10" kv="1"/>', '<motor name="hip" joint="hip"/>')
+    )
+    with pytest.raises(
+        AmorError, match=r"motor\.xml: actuator 'hip' of joint 'hip' is a motor actuator.*kind='pd'"
+    ):
+        load_model(spec_for(motor))
+    servo = load_model(spec_for(model_file, actuator=ActuatorModel(kind="servo")))  # positions become motors
+    assert (servo.actuator_biastype == mujoco.mjtBias.mjBIAS_NONE).all()
+    np.testing.assert_allclose(servo.actuator_gainprm[:, 0], 1.0)
+
+
+def test_mesh_lowest_point_matches_mujocos_own_distance_to_the_floor(tmp_path: Path) -> None:
+    """A mesh foot (a long thin box as a mesh) tilted: the lowest vertex, not the bounding sphere."""
+    verts = " ".join(f"{x} {y} {z}" for x in (-0.15, 0.15) for y in (-0.05, 0.05) for z in (-0.02, 0.02))
+    xml = f"""<mujoco><asset><mesh name="sole" vertex="{verts}"/></asset><worldbody>
+      <geom name="floor" type="plane" size="5 5 .1"/>
+      <body name="foot" pos="0.1 0.2 0.5" euler="0.3 0.4 0.2">
+        <freejoint/><geom name="m" type="mesh" mesh="sole"/>
+      </body>
+    </worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    g = m.geom("m").id
+    lowest = geom_lowest_z(m, d, g)
+    dist = mujoco.mj_geomDistance(m, d, g, m.geom("floor").id, 10.0, None)
+    assert lowest == pytest.approx(dist, abs=1e-6)
+    assert d.geom_xpos[g, 2] - m.geom_rbound[g] < lowest - 0.05  # the old bounding-sphere answer was off
