@@ -326,7 +326,6 @@ def test_randomization_is_seeded_validated_and_changes_the_dynamics(bundle_dir: 
     )
     qd = np.array([r.qpos for r in res.records])
     assert res.dynamics["latency_steps"] == 2
-    assert np.array_equal(qd[:2], qn[:2])  # the first two ticks hold the initial pose either way
     assert np.abs(qd - qn[:15]).max() > 1e-4
 
     for text, msg in (

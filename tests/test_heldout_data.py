@@ -67,7 +67,7 @@ def test_mismatched_datasets_are_refused(tmp_path: Path) -> None:
         dataset_for_run(run_ds, wide)
 
 
-def test_evaluate_and_pareto_take_held_out_data(tracking_run: Path, tmp_path: Path, capsys) -> None:
+def test_evaluate_pareto_and_tune_take_held_out_data(tracking_run: Path, tmp_path: Path, capsys) -> None:
     lib = synthetic_library(get_registry().character("biped20"), num_clips=1, seconds=1.0, seed=11)
     held = tmp_path / "held.mcap"
     write_dataset(
@@ -82,9 +82,14 @@ def test_evaluate_and_pareto_take_held_out_data(tracking_run: Path, tmp_path: Pa
     # a clip of the training data is not in the held-out set
     code = main([*args, "--motion", "sway_a"])
     assert code == 2 and "held_sway" in capsys.readouterr().err
+    tune = ["tune", str(tracking_run), "--data", str(held), "--weights", "up=1", "--seconds", "0.2", "--json"]
+    code = main(tune)
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert json.loads(out)["motion"] == "held_sway"
     human = tmp_path / "human.mcap"
     write_dataset(human, synthetic_library(get_registry().character("humanoid36"), num_clips=1, seconds=0.5))
-    for command in (["evaluate"], ["pareto", "--samples", "2"], ["tune"]):
+    for command in (["evaluate"], ["pareto", "--samples", "2"], ["tune", "--weights", "up=1"]):
         code = main([*command, str(tracking_run), "--data", str(human)])
         err = capsys.readouterr().err
         assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, (command, err)

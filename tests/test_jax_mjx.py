@@ -12,16 +12,16 @@ pytest.importorskip("mujoco.mjx")
 pytest.importorskip("flax")
 pytest.importorskip("optax")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
+import jax
+import jax.numpy as jnp
 
-from amorctl.core.config import TrainConfig, override  # noqa: E402
-from amorctl.envs.toy import ToyTradeoffEnv  # noqa: E402
-from amorctl.plugins.backends.jax_mjx import moppo_math as mm  # noqa: E402
-from amorctl.plugins.backends.jax_mjx.networks import Networks, arrays_to_params, params_to_arrays  # noqa: E402
-from amorctl.plugins.backends.torch_cpu import TorchCpuBackend  # noqa: E402
-from amorctl.plugins.backends.torch_cpu.gae import gae as torch_gae  # noqa: E402
-from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays  # noqa: E402
+from amorctl.core.config import TrainConfig, override
+from amorctl.envs.toy import ToyTradeoffEnv
+from amorctl.plugins.backends.jax_mjx import moppo_math as mm
+from amorctl.plugins.backends.jax_mjx.networks import Networks, arrays_to_params, params_to_arrays
+from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
+from amorctl.plugins.backends.torch_cpu.gae import gae as torch_gae
+from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays
 
 torch.set_num_threads(1)
 
@@ -116,11 +116,11 @@ def test_losses_and_gradients_match_torch_on_the_same_batch() -> None:
         "mask": jnp.ones(len(idx), jnp.float32),
     }  # fmt: skip
     jloss, jstats = mm.minibatch_loss(params, nets, norm, mb, cfg)
+    assert float(jloss) == pytest.approx(float(loss), abs=1e-5)
     assert float(stats["clip_fraction"]) > 0.01  # clipping is exercised
     for key, value in stats.items():
         assert float(jstats[key]) == pytest.approx(float(value), abs=1e-5), key
     grads = jax.grad(lambda p: mm.minibatch_loss(p, nets, norm, mb, cfg)[0])(params)
-    torch_grads = modules_to_arrays({"actor": trainer.actor, "critic": trainer.critic})
     torch_grads = {
         name: p.grad.numpy()
         for prefix, module in (("actor", trainer.actor), ("critic", trainer.critic))
@@ -267,7 +267,13 @@ def test_run_resumes_exactly_and_its_policy_acts_the_same_through_torch(tmp_path
     np.testing.assert_allclose(policy.values(obs), torch_policy.values(obs), atol=1e-5)
     assert np.abs(policy(obs)).max() > 1e-3
     assert policy.observation_layout["weights"] == (3, 5)
-    assert set(policy.export_arrays().arrays) >= {"actor.net.0.weight", "normalizer.mean"}
+    exported, torch_exported = policy.export_arrays(), torch_policy.export_arrays()
+    assert exported.arrays.keys() == torch_exported.arrays.keys()
+    for key, value in torch_exported.arrays.items():
+        np.testing.assert_allclose(exported.arrays[key], value, atol=1e-6, err_msg=key)
+    assert {k: v for k, v in exported.meta.items() if k != "observation_layout"} == {
+        k: v for k, v in torch_exported.meta.items() if k != "observation_layout"
+    }
 
 
 def test_plugins_list_jax_mjx_and_train_without_the_extra_names_it(tmp_path) -> None:
@@ -279,7 +285,8 @@ def test_plugins_list_jax_mjx_and_train_without_the_extra_names_it(tmp_path) -> 
         "from amorctl.cli.main import main\n"
         "from amorctl.registry import get_registry\n"
         "assert 'jax-mjx' in get_registry().names('backend')\n"
-        f"sys.exit(main(['train', '--env', 'toy', '--backend', 'jax-mjx', '--out', {str(tmp_path / 'r')!r}]))\n"
+        f"out = {str(tmp_path / 'r')!r}\n"
+        "sys.exit(main(['train', '--env', 'toy', '--backend', 'jax-mjx', '--out', out]))\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
@@ -304,8 +311,9 @@ config = override(
     ppo__learning_rate=3e-3, run__tensorboard=False,
 )
 results = {}
+make_mesh = devices.local_mesh
 for count in (1, 2):
-    mesh = devices.local_mesh(count)
+    mesh = make_mesh(count)
     devices.local_mesh = lambda num_devices=None, _m=mesh: _m  # the trainer's mesh
     env = ToyTradeoffEnv(32, max_steps=20, seed=0)
     trainer = JaxMjxBackend().make_trainer(env, config)

@@ -10,12 +10,12 @@ import pytest
 pytest.importorskip("jax")
 pytest.importorskip("mujoco.mjx")
 
-import jax.numpy as jnp  # noqa: E402
-import mujoco  # noqa: E402
+import jax.numpy as jnp
+import mujoco
 
-from amorctl.envs.synthetic import synthetic_library  # noqa: E402
-from amorctl.envs.tracking_env import TrackingEnv  # noqa: E402
-from amorctl.registry import get_registry  # noqa: E402
+from amorctl.envs.synthetic import synthetic_library
+from amorctl.envs.tracking_env import TrackingEnv
+from amorctl.registry import get_registry
 
 N = 4
 
@@ -35,6 +35,7 @@ def env_pair(character: str, contacts: bool = True, seconds: float = 2.0):
         c.sim.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
         j.core.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
         j.core.mx = mjx.put_model(j.core.model)
+        j.core.template = mjx.make_data(j.core.mx)  # no contact slots left over from the first model
     for env in (c, j):
         env.select_clips(from_start=True)  # no clip ends within the 50 steps of a 2 s clip
     obs, _ = c.reset(seed=0)
@@ -91,3 +92,64 @@ def test_mjx_physics_tracks_mujoco_c(character: str, bound: float) -> None:
     print(character, "max |Δqpos| at steps 1, 10, 25, 50:", diffs[[0, 9, 24, 49], 2])
     assert np.isfinite(diffs).all()
     assert diffs[:, 2].max() < bound, diffs[:, 2]
+
+
+@pytest.mark.slow
+def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path) -> None:
+    """`train_run` with backend jax-mjx on a biped20 tracking env: the fused rollout (policy + MJX
+    in one scan) trains, checkpoints, resumes to the same numbers, and torch-cpu's inference path
+    reads its policy."""
+    import csv
+    import dataclasses
+
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.motion.dataset import write_dataset
+    from amorctl.plugins.backends.torch_cpu.policy import TorchPolicy
+    from amorctl.train.loop import train_run
+    from amorctl.train.rundir import RunDir
+
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
+    lib = dataclasses.replace(lib, clips=tuple(lib.clips))
+    write_dataset(tmp_path / "ds.mcap", lib)
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 3, "checkpoint_every": 1, "tensorboard": False, "backend": "jax-mjx"},
+            "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
+                    "num_envs": 4, "episode_seconds": 0.2},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 2, "precision": "fp32"},
+        },
+        "test",
+    )  # fmt: skip
+    train_run(config, tmp_path / "full")
+    train_run(config, tmp_path / "part", stop_after=2)
+    train_run(config, tmp_path / "part", resume=True)
+
+    def rows(run: str) -> list[dict[str, str]]:
+        with open(tmp_path / run / "metrics.csv") as f:
+            return list(csv.DictReader(f))
+
+    a, b = rows("full"), rows("part")
+    assert len(a) == len(b) == 3
+    for ra, rb in zip(a, b, strict=True):
+        for key in ("loss/total", "loss/value", "kl", "reward/up", "episodes"):
+            assert ra[key] == rb[key], (ra["iteration"], key)
+    assert float(a[-1]["episodes"]) > 0 and np.isfinite(float(a[-1]["loss/total"]))
+    run = RunDir.open(tmp_path / "full")
+    policy = run.policy()
+    torch_policy = TorchPolicy(run.checkpoint().trainer, run.config.network)
+    obs = run.env(num_envs=4).reset(seed=1)[0]
+    np.testing.assert_allclose(policy(obs), torch_policy(obs), atol=1e-5)
+    assert policy.observation_layout["weights"] == (policy.obs_dim - 7, policy.obs_dim)
+
+    from amorctl.core.contracts import TrackingView, tracking_view
+
+    env = run.env(num_envs=4)
+    view = tracking_view(env)
+    assert isinstance(view, TrackingView)
+    assert view.clip_names == tuple(c.name for c in lib.clips)
+    np.testing.assert_allclose(
+        view.reference_joint_pos(view.reference_index()), view.joint_pos(), atol=1e-5
+    )  # RSI: the state is the reference frame
+    assert view.end_effector_pos().shape == (4, len(view.character.end_effectors), 3)

@@ -251,3 +251,35 @@ def test_documented_example_schedules_load() -> None:
         w = schedule.weights_at(10.0)
         assert abs(float(w.sum()) - 1.0) < 1e-9
         assert w[names.index("smooth")] > 1.0 / len(names)  # every example ends favouring smooth
+
+
+def test_dump_writes_tomlkit_toml_with_quoted_names_and_huge_weights(tmp_path) -> None:
+    import tomllib
+
+    from amorctl.core.schedule import dump_schedule, load_schedule
+
+    path = tmp_path / "s.toml"
+    names = ["up", "a b"]
+    dump_schedule(
+        [(0.0, [1e308, 1e308]), (1.5, {"a b": 1})],
+        names,
+        path,
+        motion_keyframes={'walker/turn "x"': [(0.0, [1, 3])]},
+    )
+    doc = tomllib.loads(path.read_text())
+    assert doc["keyframe"][0]["weights"] == {"up": 0.5, "a b": 0.5}
+    back = load_schedule(path, names)
+    assert back.weights_at(0.0).tolist() == [0.5, 0.5]
+    assert back.weights_at(0.0, 'walker/turn "x"').tolist() == [0.25, 0.75]
+
+
+def test_deeply_nested_or_huge_schedule_is_one_error(tmp_path) -> None:
+    from amorctl.core.errors import AmorError
+    from amorctl.core.schedule import load_schedule
+
+    path = tmp_path / "deep.toml"
+    path.write_text("default = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    with pytest.raises(AmorError, match=r"deep\.toml"):
+        load_schedule(path, ["up"])
+    path.write_text("[[keyframe]]\nt = 0\nweights = { up = 1e308, lo = 1e308 }\n")
+    assert load_schedule(path, ["up", "lo"]).weights_at(3.0).tolist() == [0.5, 0.5]

@@ -170,3 +170,35 @@ def test_mesh_lowest_point_matches_mujocos_own_distance_to_the_floor(tmp_path: P
     dist = mujoco.mj_geomDistance(m, d, g, m.geom("floor").id, 10.0, None)
     assert lowest == pytest.approx(dist, abs=1e-6)
     assert d.geom_xpos[g, 2] - m.geom_rbound[g] < lowest - 0.05  # the old bounding-sphere answer was off
+
+
+def test_from_mjcf_asks_only_for_what_the_model_cannot_say(
+    model_file: Path, tmp_path: Path, monkeypatch
+) -> None:
+    from amorctl.sim.from_mjcf import character_from_mjcf, plugin_cache_dir
+
+    monkeypatch.setenv("AMORCTL_CACHE_DIR", str(tmp_path / "cache"))
+    kw = {"name": "twolink", "end_effectors": ("hand", "hand", "foot", "foot"), "keypoints": {"head": "base"}}
+    with pytest.raises(AmorError, match=r"twolink\.xml: character 'twolink': no group for joint\(s\) ankle"):
+        character_from_mjcf(model_file, groups={"hip": "lower"}, **kw)
+    spec = character_from_mjcf(model_file, groups={"hip": "lower", "*": "feet"}, **kw)
+    hip, ankle = spec.joints
+    assert (hip.kp, hip.kd, hip.torque_limit) == (10.0, 1.0, 3.0)  # the joint's actuatorfrcrange
+    assert (ankle.kp, ankle.kd, ankle.torque_limit) == (5.0, 0.0, 2.0)  # the actuator's forcerange
+    assert hip.armature == pytest.approx(0.02) and ankle.friction_viscous == pytest.approx(0.5)
+    assert spec.physics_hz == 500 and spec.keypoints["left_foot"] == "foot"
+    assert list(plugin_cache_dir("from_mjcf").glob("*.json"))  # cached for the next registration
+    unlimited = model_file.with_name("unlimited.xml")
+    unlimited.write_text(MJCF.replace(' actuatorfrcrange="-3 3"', ""))
+    with pytest.raises(AmorError, match=r"no torque limit for joint\(s\) hip \(pass torque_limits=\.\.\.\)"):
+        character_from_mjcf(unlimited, groups={"*": "lower"}, **kw)
+    assert (
+        character_from_mjcf(unlimited, groups={"*": "lower"}, torque_limits={"hip": 9.0}, **kw)
+        .joints[0]
+        .torque_limit
+        == 9.0
+    )
+    with pytest.raises(AmorError, match="no body named 'palm'"):
+        character_from_mjcf(
+            model_file, groups={"*": "lower"}, **{**kw, "end_effectors": ("palm", "hand", "foot", "foot")}
+        )

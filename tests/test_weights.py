@@ -43,3 +43,27 @@ def test_dirichlet_samples_lie_on_the_simplex_with_mean_one_over_m() -> None:
     assert np.all(w >= 0)
     assert np.allclose(w.sum(1), 1, atol=1e-5)
     assert np.allclose(w.mean(0), 1 / 7, atol=0.005)
+
+
+def test_normalization_cannot_overflow_and_errors_name_the_source() -> None:
+    w = parse_weights("up=1e308,lo=1e308", NAMES, source="--weights")
+    assert w.tolist() == [0.5, 0.5, 0, 0, 0, 0, 0]
+    assert parse_weights("up=1e-320,lo=3e-320", NAMES) == pytest.approx([0.25, 0.75, 0, 0, 0, 0, 0])
+    for text, message in [
+        ("up=1,,lo=1", "--weights: empty item"),
+        ("up=1,", "--weights: empty item"),
+        ("", "--weights: empty weights"),
+        ("=1", "--weights: '=1' has no objective name"),
+        ("up=1e309", "--weights: up=1e309 is not finite"),
+    ]:
+        with pytest.raises(AmorError, match=message):
+            parse_weights(text, NAMES, source="--weights")
+
+
+def test_normalize_weights_rows_of_huge_values() -> None:
+    from amorctl.core.weights import normalize_weights
+
+    rows = normalize_weights(np.array([[1e308, 1e308, 1e308], [0.0, 2.0, 0.0]]))
+    np.testing.assert_allclose(rows, [[1 / 3] * 3, [0, 1, 0]])
+    with pytest.raises(AmorError, match="all zero"):
+        normalize_weights(np.zeros((2, 3)))

@@ -22,6 +22,7 @@ from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule, load_schedule
 from amorctl.core.weights import parse_weights
+from amorctl.motion.heldout import config_with_dataset
 from amorctl.train.rundir import RunDir
 
 ROWS = (
@@ -143,6 +144,23 @@ def evaluate(
         Path | None, typer.Option("--out", help="Directory for the sweep figure (default RUN/evaluate).")
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the episodes' starts.")] = 0,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="Held-out motion dataset to run on (clips re-encoded with the run's VAE)."
+        ),
+    ] = None,
+    hlp: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--hlp", help="HLP directory: Table 2 rows beside uniform, needs --compare (docs/hlp.md)."
+        ),
+    ] = None,
+    hlp_envs: Annotated[int, typer.Option("--hlp-envs", help="Table 2: episodes per row.")] = 16,
+    hlp_seconds: Annotated[float, typer.Option("--hlp-seconds", help="Table 2: seconds per episode.")] = 10.0,
+    disc_steps: Annotated[
+        int, typer.Option("--disc-steps", help="Table 2: training steps of the evaluation discriminator.")
+    ] = 300,
     json_out: JsonFlag = False,
 ) -> None:
     """Joint MAE, MPJPE, survival, episode length and returns per weight setting."""
@@ -150,8 +168,16 @@ def evaluate(
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
     if video is not None and video.suffix.lower() != ".mp4":
         raise AmorError(f"--video {video}: the file must end in .mp4")
+    if hlp:  # Table 2 with the high-level policy (amorctl.hlp.eval_discriminator)
+        from amorctl.cli.hlp import evaluate_hlp
+
+        others = {"--schedule": schedule, "--sweep": sweep, "--video": video, "--data": data}
+        evaluate_hlp(
+            run, hlp, weights, motion, compare, hlp_envs, hlp_seconds, disc_steps, seed, json_out, others
+        )
+        return
     opened = RunDir.open(run)
-    policy, config = opened.policy(), opened.config
+    policy, config = opened.policy(), config_with_dataset(opened.config, data)
     if video is not None and config.env.kind != "tracking":
         raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
     names = tuple(policy.objectives)

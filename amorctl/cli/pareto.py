@@ -23,6 +23,7 @@ from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
+from amorctl.motion.heldout import config_with_dataset
 from amorctl.train.rundir import RunDir
 
 MotionOpt = Annotated[
@@ -75,6 +76,12 @@ def pareto(
     ] = "auto",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the weight samples and of the episodes.")] = 0,
     out: Annotated[Path | None, typer.Option("--out", help="Output directory (default RUN/pareto).")] = None,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="Held-out motion dataset to run on (clips re-encoded with the run's VAE)."
+        ),
+    ] = None,
     json_out: JsonFlag = False,
 ) -> None:
     """Sample K weight vectors, evaluate all in one batched rollout, and report the Pareto front."""
@@ -83,7 +90,7 @@ def pareto(
     if episodes < 1:
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
     opened = RunDir.open(run)
-    policy, config = opened.policy(), opened.config
+    policy, config = opened.policy(), config_with_dataset(opened.config, data)
     names = tuple(policy.objectives)
     weights, sampling = sweep_weights(len(names), samples, grid=grid, seed=seed)
     reference = parse_reference_point(ref_point, names) if ref_point is not None else None

@@ -77,6 +77,12 @@ def tune(
         ),
     ] = True,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the env.")] = 0,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="Held-out motion dataset to run on (clips re-encoded with the run's VAE)."
+        ),
+    ] = None,
     live: Annotated[bool, typer.Option("--live", help="Serve the live tuning page instead.")] = False,
     host: Annotated[str, typer.Option("--host", help="Address of the live page (local only by default).")] = (
         "127.0.0.1"
@@ -85,6 +91,12 @@ def tune(
     save_to: Annotated[
         Path, typer.Option("--save-to", help="Live page: where 'save schedule' writes the keyframes.")
     ] = Path("tune-schedule.toml"),
+    hlp: Annotated[
+        Path | None, typer.Option("--hlp", help="An HLP directory chooses w_t every step (docs/hlp.md).")
+    ] = None,
+    scale: Annotated[
+        str | None, typer.Option("--scale", help="With --hlp: multiply its w_t, e.g. smooth=2,vel=0.5.")
+    ] = None,
     json_: JsonFlag = False,
 ) -> None:
     """Run the policy with weights chosen after training: constant (--weights), over time
@@ -93,8 +105,20 @@ def tune(
     from amorctl.core.weights import parse_weights
     from amorctl.tune.session import PinnedMotion, run_tune
 
+    if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
+        from amorctl.cli.hlp import tune_with_hlp
+
+        if data is not None:
+            raise AmorError("--hlp runs on the run's own dataset (the HLP was trained on it); drop --data")
+        tune_with_hlp(
+            run, hlp, motion, scale, seconds, weights, schedule, out, plot, video, stop_on_fall, seed, live,
+            host, port, save_to, json_,
+        )  # fmt: skip
+        return
+    if scale is not None:
+        raise AmorError("--scale edits the weights an HLP chose; it needs --hlp")
     _check_args(live, schedule, weights, out, plot, video, port)
-    tenv = PinnedMotion(run, motion, seed=seed)
+    tenv = PinnedMotion(run, motion, seed=seed, dataset=data)
     if video is not None and not tenv.tracking:
         tenv.close()
         raise AmorError(f"--video needs a character; run {run} has env kind {tenv.config.env.kind!r}")

@@ -55,7 +55,9 @@ class ActuatorModel:
     law on a command delayed by ``latency_steps`` physics steps, clipped by a torque–speed curve
     that falls linearly from ``torque_limit`` at rest to zero at ``no_load_speed``. Armature,
     Coulomb friction (``frictionloss``) and viscous friction (``damping``) are native MuJoCo joint
-    properties and are written into the MJCF with these same values.
+    properties: the three fields here record the values the model file holds for every joint
+    (informational); to have amorctl write a value into the model, set it per joint in
+    :class:`JointSpec`.
     """
 
     kind: Literal["pd", "servo"]

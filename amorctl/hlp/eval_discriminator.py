@@ -30,6 +30,7 @@ from amorctl.hlp.config import DiscriminatorConfig, HlpConfig
 from amorctl.hlp.discriminator import DiscriminatorLearner
 from amorctl.hlp.run import HlpSetup, resolve_motions, run_dataset, setup
 from amorctl.hlp.windows import DatasetWindows, WindowHistory, WindowSpec, observation_slices
+from amorctl.train.rundir import RunDir
 
 SCHEMA = "amorctl.hlp_table/1"
 
@@ -180,6 +181,9 @@ def hlp_table(
     from amorctl.hlp.run import LoadedHlp
 
     opts.check()
+    for _, _, source in conditions:  # an HLP of another run is refused before any rollout
+        if isinstance(source, LoadedHlp):
+            source.dir.check_run(RunDir.open(run_path))
     say = progress or (lambda _: None)
     torch_threads = torch.get_num_threads()
     cfg = HlpConfig()

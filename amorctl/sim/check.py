@@ -148,6 +148,8 @@ def check_character(
     status: Status = "pass"
     if qpos_order != names:
         status, detail = "warn", detail + "; spec order differs from the model's qpos order"
+    if act_order != names:  # harmless: amorctl maps actuators by joint, never by index
+        detail += "; the model's actuator order differs from the joint order (mapped by name)"
     if passive:
         status, detail = "warn", detail + f"; unactuated hinges keep qpos0: {_fmt_list(passive)}"
     checks.append(

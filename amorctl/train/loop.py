@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from amorctl.core.config import TrainConfig, to_toml
-from amorctl.core.contracts import SnapshotEnv, Trainer
+from amorctl.core.contracts import Snapshot, SnapshotEnv, Trainer
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
 from amorctl.core.vecenv import VectorEnv
@@ -138,7 +138,11 @@ def _restore(
     try:
         # this rank's part; with another world size every rank takes rank 0's networks and RNG
         trainer_state = distributed.rank_snapshot(ckpt.trainer, world.rank if same_world else 0)
-        check_like(ckpt.path, "trainer", trainer.state_dict(), trainer_state)
+        expected = trainer.state_dict()
+        if not same_world:  # per-env arrays (leading dimension N) restart with the envs below
+            kept = {k: v for k, v in expected.arrays.items() if v.shape[:1] != (env.num_envs,)}
+            expected = Snapshot(kept, expected.meta)
+        check_like(ckpt.path, "trainer", expected, trainer_state)
         trainer.load_state_dict(trainer_state)
         if not same_world and on_note is not None:
             on_note(

@@ -27,6 +27,7 @@ from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
 from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
 from amorctl.envs.wrappers import FixedWeights
+from amorctl.motion.heldout import config_with_dataset
 from amorctl.motion.resolve import resolve_name
 from amorctl.train.rundir import RunDir, check_compatible
 
@@ -79,17 +80,22 @@ class PinnedMotion:
         motion: clip name (exact, unique prefix or suffix; see :mod:`amorctl.motion.resolve`);
             None: the dataset's first clip. Must be None for runs without motions (toy, gym).
         seed: seed of the env.
+        dataset: held-out motion dataset to track instead of the run's (``tune --data``; clips
+            re-encoded with the run's VAE, see :mod:`amorctl.motion.heldout`).
 
     Raises:
-        AmorError: no run or checkpoint, a checkpoint for another env, an unknown motion.
+        AmorError: no run or checkpoint, a checkpoint for another env, an unknown motion, a
+            dataset that does not fit the run.
     """
 
-    def __init__(self, run_dir: str | Path, motion: str | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, run_dir: str | Path, motion: str | None = None, seed: int = 0, dataset: Path | None = None
+    ) -> None:
         self.run_dir = Path(run_dir)
         run = RunDir.open(self.run_dir)
         ckpt = run.checkpoint()
         self.policy = run.policy_of(ckpt)
-        config = run.config
+        config = config_with_dataset(run.config, dataset)  # --data: held-out clips
         env_cfg = dataclasses.replace(config.env, num_envs=1, fixed_weights="")
         self.config = dataclasses.replace(config, env=env_cfg, run=dataclasses.replace(config.run, seed=seed))
         base: Any = make_env(self.config)

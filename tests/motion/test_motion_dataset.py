@@ -154,3 +154,139 @@ def test_frame_windows_stay_inside_clips():
     np.testing.assert_array_equal(w[0], lib.frames[[0, 0, 0, 1, 2]])
     np.testing.assert_array_equal(w[1], lib.frames[[7, 7, 7, 8, 9]])
     np.testing.assert_array_equal(w[2], lib.frames[[8, 9, 10, 10, 10]])
+
+
+def _flip_frames_byte(monkeypatch, path, lib) -> None:
+    """Write ``lib`` with one byte of clip 0's ``frames`` flipped after its hashes were taken:
+    a hand-made dataset whose MCAP records are all intact but whose array is not."""
+    import base64
+
+    from amorctl.motion import dataset
+
+    encode = dataset._encode_array
+    done = []
+
+    def flipping(a):
+        d = encode(a)
+        if not done and a.shape[1:] == lib.frames.shape[1:]:
+            raw = bytearray(base64.b64decode(d["data"]))
+            raw[5] ^= 0x10
+            d["data"] = base64.b64encode(bytes(raw)).decode("ascii")
+            done.append(True)
+        return d
+
+    monkeypatch.setattr(dataset, "_encode_array", flipping)
+    write_dataset(path, lib)
+    monkeypatch.undo()
+    assert done
+
+
+def test_one_flipped_byte_in_frames_is_refused_by_data_show_and_train(tmp_path, capsys, monkeypatch):
+    import dataclasses
+
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.registry import get_registry
+
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=0.4, seed=3)
+    lib = dataclasses.replace(
+        lib, clips=tuple(dataclasses.replace(c, name=f"c{i}") for i, c in enumerate(lib.clips))
+    )
+    good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
+    write_dataset(good, lib)
+    _flip_frames_byte(monkeypatch, bad, lib)
+
+    assert main(["data", "show", str(good), "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["integrity"]["verified"] is True
+    assert (
+        shown["integrity"]["sha256"]["frames"]
+        == hashlib.sha256(lib.frames.astype("<f4").tobytes()).hexdigest()
+    )
+
+    expected = f"error: {bad}: array 'frames' does not match its recorded SHA-256"
+    assert main(["data", "show", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(expected) and err.count("\n") == 1, err
+    out = tmp_path / "run"
+    code = main(["train", "-c", "biped20", "--data", str(bad), "--num-envs", "2", "--iterations", "1",
+                 "--out", str(out), "--json"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(expected) and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_the_library_rules_are_checked_before_writing(tmp_path):
+    import dataclasses
+
+    from amorctl.core.errors import AmorError
+
+    lib = _library(np.random.default_rng(0))
+    twice = dataclasses.replace(lib, clips=(lib.clips[0], dataclasses.replace(lib.clips[1], name="a")))
+    with pytest.raises(AmorError, match="clip name 'a' is used twice"):
+        write_dataset(tmp_path / "d.mcap", twice)
+    nan = dataclasses.replace(lib, z=np.where(np.arange(11)[:, None] == 8, np.nan, lib.z).astype(np.float32))
+    with pytest.raises(AmorError, match=r"array 'z' holds NaN or inf \(clip 'walker/b', frame 1\)"):
+        write_dataset(tmp_path / "d.mcap", nan)
+    short = dataclasses.replace(
+        lib,
+        clips=(
+            dataclasses.replace(lib.clips[0], num_frames=10),
+            dataclasses.replace(lib.clips[1], start=10, num_frames=1),
+        ),
+    )
+    with pytest.raises(AmorError, match="has 1 frame"):
+        write_dataset(tmp_path / "d.mcap", short)
+    assert not (tmp_path / "d.mcap").exists()
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("fps", "0", "'fps' = '0' must be a number"),
+        ("fps", "x", "'fps' = 'x' is not a number"),
+        ("version", "x", "'version' = 'x' is not an integer"),
+        ("joint_names", "[", "'joint_names' = '\\[' is not a JSON list"),
+        ("sha256", None, "lacks the content hashes"),
+    ],
+)
+def test_bad_dataset_metadata_is_one_error_naming_file_and_key(tmp_path, key, value, message):
+    from amorctl.core.errors import AmorError
+    from amorctl.motion import dataset
+
+    write = dataset.Writer.add_metadata
+
+    def patched(self, name, data):
+        if name == "amorctl.dataset":
+            data = dict(data)
+            if value is None:
+                data.pop(key)
+            else:
+                data[key] = value
+        return write(self, name, data)
+
+    path = tmp_path / "d.mcap"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dataset.Writer, "add_metadata", patched)
+        write_dataset(path, _library(np.random.default_rng(0)))
+    with pytest.raises(AmorError, match=message) as info:
+        load_dataset(path)
+    assert str(path) in str(info.value)
+
+
+def test_version_1_datasets_without_hashes_load_unverified(tmp_path, capsys):
+    from amorctl.motion import dataset
+
+    write = dataset.Writer.add_metadata
+
+    def as_v1(self, name, data):
+        if name == "amorctl.dataset":
+            data = {k: v for k, v in data.items() if k != "sha256"} | {"version": "1"}
+        return write(self, name, data)
+
+    path = tmp_path / "old.mcap"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dataset.Writer, "add_metadata", as_v1)
+        write_dataset(path, _library(np.random.default_rng(0)))
+    assert load_dataset(path).metadata["integrity"]["verified"] is False
+    assert main(["data", "show", str(path)]) == 0
+    assert "integrity: not verified (version 1 dataset" in capsys.readouterr().out

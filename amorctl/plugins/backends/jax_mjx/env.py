@@ -152,8 +152,15 @@ class MjxTracking:
                       "ee_pos", "ee_quat", "ee_lin_vel")
         }  # fmt: skip
         ref = frame_features(
-            lib.root_pos, lib.root_quat, lib.root_lin_vel, lib.root_ang_vel, lib.joint_pos,
-            lib.joint_vel, lib.ee_pos, lib.ee_quat, lib.ee_lin_vel,
+            lib.root_pos,
+            lib.root_quat,
+            lib.root_lin_vel,
+            lib.root_ang_vel,
+            lib.joint_pos,
+            lib.joint_vel,
+            lib.ee_pos,
+            lib.ee_quat,
+            lib.ee_lin_vel,
         )  # fmt: skip  (float64 numpy, as the C env, then float32)
         self.ref_frames = f32(ref)
         self.context_frames = f32(lib.frames)
@@ -259,9 +266,7 @@ class MjxTracking:
                 head = (head + 1) % (self.latency + 1)
                 cmd = delay[head]  # the command of `latency` physics steps ago
                 q, qd = data.qpos[:, self.joint_qpos], data.qvel[:, self.joint_dof]
-                tau = servo_torque(
-                    cmd, q, qd, self.kp, self.kd, self.torque_limit, self.no_load_speed, xp=xp
-                )
+                tau = servo_torque(cmd, q, qd, self.kp, self.kd, self.torque_limit, self.no_load_speed, xp=xp)
                 ctrl = data.ctrl.at[:, self.actuators].set(tau / self.gear)
                 data = step(self.mx, data.replace(ctrl=ctrl))
             else:
@@ -344,7 +349,9 @@ class MjxTracking:
         final_obs = jnp.where(diverged[:, None], fresh_obs, obs)
         obs = jnp.where(done[:, None], fresh_obs, obs)
         new = EnvState(**st, delay=delay, delay_head=head, obs=obs, key=key)
-        return new, StepOut(obs, rewards, terminated, truncated, final_obs, fell & ~diverged, diverged, switched)
+        return new, StepOut(
+            obs, rewards, terminated, truncated, final_obs, fell & ~diverged, diverged, switched
+        )
 
 
 class MjxTrackingEnv:
@@ -470,7 +477,9 @@ class MjxTrackingEnv:
         """One control step (see :class:`amorctl.core.vecenv.VectorEnv`; ``info`` as torch-cpu's)."""
         actions = np.asarray(actions, dtype=np.float32)
         if actions.shape != (self.num_envs, self.action_dim):
-            raise AmorError(f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}")
+            raise AmorError(
+                f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}"
+            )
         self.state, out = self._step(self._require(), self.sel, jnp.asarray(actions))
         out = jax.device_get(out)
         self.diverged_total += int(out.diverged.sum())
@@ -484,10 +493,15 @@ class MjxTrackingEnv:
         return out.obs, out.rewards, out.terminated, out.truncated, info
 
     def select_clips(
-        self, clips: Sequence[int] | None = None, env_clips: np.ndarray | None = None, from_start: bool = False
+        self,
+        clips: Sequence[int] | None = None,
+        env_clips: np.ndarray | None = None,
+        from_start: bool = False,
     ) -> None:
         """Restrict which clips episodes use from the next reset on (torch-cpu's ``select_clips``)."""
-        valid = self.all_valid_clips if clips is None else self._check_clips(np.asarray(clips, np.int64).ravel())
+        valid = (
+            self.all_valid_clips if clips is None else self._check_clips(np.asarray(clips, np.int64).ravel())
+        )
         pinned = env_clips is not None
         per_env = np.full(self.num_envs, -1, np.int64)
         if pinned:
@@ -496,12 +510,22 @@ class MjxTrackingEnv:
                 raise AmorError(f"env_clips must have one clip per env ({self.num_envs}), got {per_env.size}")
         padded = np.full(len(self.library.clips), valid[0], np.int32)
         padded[: len(valid)] = valid
-        self.valid_clips, self.env_clips, self.from_start = valid, per_env if pinned else None, bool(from_start)
+        self.valid_clips, self.env_clips, self.from_start = (
+            valid,
+            per_env if pinned else None,
+            bool(from_start),
+        )
         self.sel = Selection(
             valid=jnp.asarray(padded), num_valid=jnp.asarray(len(valid), jnp.int32),
             env_clips=jnp.asarray(per_env, jnp.int32), pinned=jnp.asarray(pinned),
             from_start=jnp.asarray(bool(from_start)),
         )  # fmt: skip
+
+    def tracking_view(self) -> Any:
+        """The :class:`~amorctl.core.contracts.TrackingView` analysis reads this env through."""
+        from amorctl.plugins.backends.jax_mjx.view import MjxTrackingView
+
+        return MjxTrackingView(self)
 
     def close(self) -> None:
         """Nothing to release (kept for the VectorEnv lifecycle)."""
@@ -511,7 +535,7 @@ class MjxTrackingEnv:
         """The whole env state: every leaf of :class:`EnvState` as ``state/<i>`` (numpy), the clip
         selection and ``diverged_total`` in the metadata."""
         leaves = jax.tree_util.tree_leaves(jax.device_get(self._require()))
-        arrays = {f"state/{i}": np.asarray(x).copy() for i, x in enumerate(leaves)}
+        arrays = {f"state/{i}": np.atleast_1d(np.asarray(x)).copy() for i, x in enumerate(leaves)}
         meta = {
             "backend": "jax-mjx",
             "leaves": len(leaves),
@@ -537,7 +561,9 @@ class MjxTrackingEnv:
             restored.append(jnp.asarray(value.reshape(shape), dtype=like.dtype))
         meta = state.meta
         self.select_clips(meta.get("valid_clips"), meta.get("env_clips"), bool(meta.get("from_start", False)))
-        self.state = self._place(jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(current), restored))
+        self.state = self._place(
+            jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(current), restored)
+        )
         self.diverged_total = int(meta.get("diverged_total", 0))
 
     # ------------------------------------------------------------------ fused rollouts

@@ -133,7 +133,9 @@ class HostNormalizer:
             value = np.asarray(arrays[f"normalizer.{key}"], np.float64)
             shape = np.shape(getattr(self, key))
             if value.size != int(np.prod(shape)):  # safetensors stores the 0-d count as [1]
-                raise AmorError(f"checkpoint array normalizer.{key} has shape {value.shape}, expected {shape}")
+                raise AmorError(
+                    f"checkpoint array normalizer.{key} has shape {value.shape}, expected {shape}"
+                )
             setattr(self, key, value.reshape(shape).copy())
 
 

@@ -23,6 +23,8 @@ from amorctl.plugins.backends.jax_mjx.networks import (
     params_to_arrays,
 )
 
+EXPORT_FORMAT = "amorctl-mlp-policy/1"  # torch-cpu's export format (same names and meaning)
+
 
 class JaxPolicy:
     """``policy(obs [N, D]) -> actions [N, A]`` (the Gaussian mean); ``values(obs) -> [N, m]``."""
@@ -67,19 +69,33 @@ class JaxPolicy:
         return dict(self._layout)
 
     def export_arrays(self) -> Snapshot:
-        """Actor, critic and normalizer under torch-cpu's names (``actor.net.<2i>.weight`` [out, in],
-        ELU between layers; ``normalizer.mean/var/count`` float64, inputs scaled by
-        ``clip((x - mean) / (sqrt(var) + eps), -clip, clip)``)."""
-        arrays = params_to_arrays(self.params)
-        arrays.update(self.normalizer.to_arrays())
+        """The inference parameters under the backend-neutral names torch-cpu's ``TorchPolicy``
+        exports (``normalizer/mean``, ``normalizer/scale`` = sqrt(var) + eps, ``actor/log_std``,
+        ``<net>/<i>/weight`` [out, in] and ``<net>/<i>/bias``), float32, format
+        ``amorctl-mlp-policy/1``."""
+        arrays: dict[str, np.ndarray] = {
+            "normalizer/mean": self.normalizer.mean.astype(np.float32),
+            "normalizer/scale": (np.sqrt(self.normalizer.var) + self.normalizer.eps).astype(np.float32),
+        }
+        named = params_to_arrays(self.params)
+        arrays["actor/log_std"] = named["actor.log_std"]
+        counts = {}
+        for name in ("actor", "critic"):
+            i = 0
+            while f"{name}.net.{2 * i}.weight" in named:
+                arrays[f"{name}/{i}/weight"] = named[f"{name}.net.{2 * i}.weight"]
+                arrays[f"{name}/{i}/bias"] = named[f"{name}.net.{2 * i}.bias"]
+                i += 1
+            counts[name] = i
         meta = {
+            "format": EXPORT_FORMAT,
+            "activation": "elu",
+            "obs_clip": float(self.normalizer.clip),
+            "actor_layers": counts["actor"],
+            "critic_layers": counts["critic"],
             "obs_dim": self.obs_dim,
             "action_dim": self.action_dim,
             "objectives": list(self.objectives),
-            "actor_hidden": list(self.network.actor_hidden),
-            "critic_hidden": list(self.network.critic_hidden),
-            "activation": "elu",
-            "obs_clip": self.normalizer.clip,
-            "normalizer_eps": self.normalizer.eps,
+            "observation_layout": {k: list(v) for k, v in self._layout.items()},
         }
         return Snapshot(arrays, meta)

@@ -185,7 +185,9 @@ class JaxMOPPOTrainer:
     def _host_rollout(self, norm: Any) -> tuple[mm.Batch, dict[str, float]]:
         """T host env steps with the jitted policy (torch-cpu's ``collect_rollout``)."""
         T, N, m = self.cfg.num_steps, self.env.num_envs, self.num_objectives
-        bufs: dict[str, list[Any]] = {k: [] for k in ("obs", "act", "mean", "val", "logp", "next", "rew", "w")}
+        bufs: dict[str, list[Any]] = {
+            k: [] for k in ("obs", "act", "mean", "val", "logp", "next", "rew", "w")
+        }
         term_buf = np.zeros((T, N), bool)
         trunc_buf = np.zeros((T, N), bool)
         t_env = t_policy = 0.0
@@ -304,7 +306,15 @@ class JaxMOPPOTrainer:
         metrics["time/env_frac"] = times["env"] / elapsed
         metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
         metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
-        for key in ("loss/total", "loss/policy", "loss/value", "loss/entropy", "kl", "approx_kl", "clip_fraction"):
+        for key in (
+            "loss/total",
+            "loss/policy",
+            "loss/value",
+            "loss/entropy",
+            "kl",
+            "approx_kl",
+            "clip_fraction",
+        ):
             metrics[key] = float(stats[key])
         metrics["learning_rate"] = self.learning_rate
         metrics["action_std"] = float(np.exp(np.asarray(self.params["actor"]["log_std"])).mean())
@@ -344,6 +354,8 @@ class JaxMOPPOTrainer:
             "action_dim": self.env.action_dim,
             "objectives": list(self.names),
         }
+        # safetensors checkpoints store 0-d arrays as [1]: write them so, and a fresh state matches
+        arrays = {k: np.atleast_1d(v) for k, v in arrays.items()}
         layout = getattr(self.env, "obs_layout", None)
         if isinstance(layout, dict):
             meta["observation_layout"] = {k: [s.start, s.stop] for k, s in layout.items()}
@@ -353,7 +365,11 @@ class JaxMOPPOTrainer:
         """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape, objective
         set or backend."""
         meta, arrays = state.meta, state.arrays
-        expect = {"obs_dim": self.env.obs_dim, "action_dim": self.env.action_dim, "objectives": list(self.names)}
+        expect = {
+            "obs_dim": self.env.obs_dim,
+            "action_dim": self.env.action_dim,
+            "objectives": list(self.names),
+        }
         for key, value in expect.items():
             if meta.get(key) != value:
                 raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
