@@ -217,22 +217,23 @@ def main_cli(directory: Path, world: distributed.World) -> None:
 
 
 def main_pareto(directory: Path, world: distributed.World) -> None:
-    """A 2-rank Pareto sweep and a 2-rank weight sweep of the toy run in ``directory/run``."""
-    from amorctl.analysis.eval_env import sweep_weights
-    from amorctl.analysis.sweep_ranks import pareto_sweep_ranks, weight_sweep_ranks
-    from amorctl.analysis.sweeps import pareto_csv, pareto_to_dict
-    from amorctl.train.rundir import RunDir
+    """``amorctl pareto`` and ``amorctl evaluate --sweep`` of the toy run in ``directory/run``."""
+    from amorctl.cli.main import main
 
-    run = RunDir.open(directory / "run")
-    policy, config = run.policy(), run.config
-    weights, sampling = sweep_weights(2, SWEEP_K, seed=0)
-    sweep = pareto_sweep_ranks(policy, config, weights, episodes=SWEEP_E, seed=3, sampling=sampling)
-    ws = weight_sweep_ranks(policy, config, "right", episodes=4, seed=3)
-    assert (sweep is None) == (ws is None) == (world.rank != 0)
-    if sweep is not None and ws is not None:
-        (directory / "pareto.csv").write_text(pareto_csv(sweep))
-        doc = {"pareto": pareto_to_dict(sweep), "sweep": ws.to_dict()}
-        (directory / "pareto.json").write_text(json.dumps(doc))
+    run, common = str(directory / "run"), ["--seed", "3", "--json"]
+    pareto = [
+        "pareto",
+        run,
+        "--samples",
+        str(SWEEP_K),
+        "--episodes",
+        str(SWEEP_E),
+        "--out",
+        str(directory / "p"),
+    ]
+    assert main([*pareto, *common]) == 0
+    evaluate = ["evaluate", run, "--sweep", "right", "--episodes", "4", "--out", str(directory / "e")]
+    assert main([*evaluate, *common]) == 0
 
 
 # ---------------------------------------------------------------------------- tests
@@ -343,26 +344,34 @@ def test_two_rank_sweeps_gather_the_rank_blocks_into_the_one_process_layout(
     procs = launch("pareto", tmp_path)
     run = RunDir.open(tmp_path / "run")
     policy, config = run.policy(), run.config
-    weights, _ = sweep_weights(2, SWEEP_K, seed=0)
+    weights, _ = sweep_weights(2, SWEEP_K, seed=3)
     seeds = [distributed.rank_seed(3, r) for r in range(2)]
     halves = [pareto_sweep(policy, config, weights[s], episodes=SWEEP_E, seed=seed)
               for s, seed in zip((slice(0, 8), slice(8, 16)), seeds, strict=True)]  # fmt: skip
     full = pareto_sweep(policy, config, weights, episodes=SWEEP_E, seed=3)
     levels = [weight_sweep(policy, config, "right", episodes=2, seed=seed) for seed in seeds]
     assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
-    assert not (tmp_path / "rank1.out").read_text()
-    doc = json.loads((tmp_path / "pareto.json").read_text())
-    (front,) = doc["pareto"]["motions"]
+    assert not (tmp_path / "rank1.out").read_text()  # rank 1 printed and wrote nothing
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == ["e", "p", "run"]
+    stdout, decoder, docs = (tmp_path / "rank0.out").read_text(), json.JSONDecoder(), []
+    while stdout.strip():
+        doc, end = decoder.raw_decode(stdout.strip())
+        docs.append(doc)
+        stdout = stdout.strip()[end:]
+    pareto_doc, evaluate_doc = docs
+    assert json.loads((tmp_path / "p/pareto.json").read_text())["motions"] == pareto_doc["motions"]
+    (front,) = pareto_doc["motions"]
     points = np.concatenate([h.groups[0].points for h in halves])
     np.testing.assert_array_equal(np.array(front["points"]), points)  # each rank's block, in row order
-    np.testing.assert_array_equal(np.array(doc["pareto"]["weights"]), weights)
+    np.testing.assert_array_equal(np.array(pareto_doc["weights"]), weights)
     assert front["equal_weights_point"] == halves[0].groups[0].equal_point.tolist()
     summary = summarize_front(points, weights, None, seed=3)
     assert front["non_dominated"] == summary.non_dominated.tolist()
     assert front["hypervolume"]["value"] == summary.hypervolume.value
-    assert doc["pareto"]["timing"]["num_envs"] == sum(h.num_envs for h in halves)
-    csv_rows = list(csv.DictReader(io.StringIO((tmp_path / "pareto.csv").read_text())))
+    assert pareto_doc["timing"]["num_envs"] == sum(h.num_envs for h in halves)
+    csv_rows = list(csv.DictReader(io.StringIO((tmp_path / "p/pareto.csv").read_text())))
     assert [r["sample"] for r in csv_rows] == [str(k) for k in range(SWEEP_K)] + ["equal"]
+    assert (tmp_path / "p/pareto.png").stat().st_size > 0
     # the same front as the 1-process sweep up to the episodes' random starts: each weight's
     # returns agree (rows correlate), and so does the hypervolume
     one = full.groups[0]
@@ -377,8 +386,9 @@ def test_two_rank_sweeps_gather_the_rank_blocks_into_the_one_process_layout(
         for s in (4, 5, 6)
     ]  # the seed-to-seed spread of the 1-process front
     assert abs(hypervolume(points) - np.mean(ones)) < 3 * np.std(ones), (hypervolume(points), ones)
-    # the weight sweep: 2 episodes per level from each rank, side by side
-    sweep = doc["sweep"]
+    # the weight sweep: 2 episodes per level from each rank, side by side; rank 0 also evaluated
+    sweep = evaluate_doc["sweep"]
+    assert evaluate_doc["settings"] and Path(sweep["figure"]).is_file()
     np.testing.assert_array_equal(
         np.array(sweep["returns"]), np.concatenate([ws.returns for ws in levels], axis=1)
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -272,3 +273,129 @@ def test_load_policy_reproduces_the_trainers_actions(tmp_path: Path) -> None:
     obs = np.random.default_rng(0).normal(size=(5, policy.obs_dim)).astype(np.float32)
     np.testing.assert_array_equal(policy(obs), trainer.act(obs))
     assert policy.values(obs).shape == (5, 2)
+
+
+def test_a_run_that_fails_before_its_first_checkpoint_leaves_nothing_and_can_be_rerun(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_TOML)
+    out = tmp_path / "run"
+    from amorctl.train import metrics
+
+    def broken_write(self, m):  # fails after config.toml and metrics.csv exist
+        self.path.write_text("iteration\n")
+        raise AmorError(f"{self.path}: disk full")
+
+    monkeypatch.setattr(metrics.MetricsLog, "write", broken_write)
+    code, _, err = run_cli(capsys, "train", "--config", str(cfg), "--out", str(out), "--json")
+    assert code == 2 and "disk full" in err and err.count("\n") == 1
+    assert not out.exists()
+    monkeypatch.undo()
+    code, stdout, err = run_cli(capsys, "train", "--config", str(cfg), "--out", str(out), "--json")
+    assert code == 0, err
+    assert json.loads(stdout)["end_iteration"] == 6
+
+
+def test_divergence_before_the_first_checkpoint_is_one_line_and_removes_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
+
+    iteration = MOPPOTrainer.iteration
+
+    def diverging(self):
+        metrics = iteration(self)
+        return {**metrics, "loss/total": float("nan")}
+
+    monkeypatch.setattr(MOPPOTrainer, "iteration", diverging)
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_TOML)
+    existing = tmp_path / "mine"
+    existing.mkdir()
+    (existing / "notes.txt").write_text("keep me")
+    for out in (tmp_path / "run", existing):
+        code, _, err = run_cli(capsys, "train", "--config", str(cfg), "--out", str(out), "--json")
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith("error: training diverged at iteration 1 (non-finite loss)")
+        assert "no checkpoint was saved, so the run directory was removed" in err
+    assert not (tmp_path / "run").exists()
+    assert sorted(p.name for p in existing.iterdir()) == ["notes.txt"]  # only the run's files went
+
+
+def test_captured_simulator_warnings_are_counted_not_printed(capfd: pytest.CaptureFixture) -> None:
+    import mujoco
+
+    from amorctl.train.loop import captured_sim_warnings
+
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><body><freejoint/><geom size='.1'/></body></worldbody></mujoco>"
+    )
+    with captured_sim_warnings() as warnings:
+        for _ in range(5):  # MuJoCo warns once per MjData and kind of warning
+            data = mujoco.MjData(model)
+            data.qvel[:] = np.nan
+            mujoco.mj_step(model, data)
+    assert warnings.total == 5 and "QVEL" in warnings.first
+    assert "warned 5 times" in warnings.summary()
+    assert "WARNING" not in capfd.readouterr().out
+    assert mujoco.get_mju_user_warning() is None
+
+
+def _edit_checkpoint(out: Path, change) -> Path:
+    from amorctl.train.checkpoint import record_sha256
+
+    path = list_checkpoints(out / "checkpoints")[-1][1]
+    record = json.loads(path.read_text())
+    change(record)
+    record["meta_sha256"] = record_sha256(record)  # a deliberate edit: only the checks can tell
+    path.write_text(json.dumps(record))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda r: r.update(iteration=-1), "'iteration' = -1 must be an integer >= 0"),
+        (lambda r: r.update(iteration="x"), "'iteration' = 'x' must be an integer >= 0"),
+        (lambda r: r.update(iteration=4), "'iteration' = 4 disagrees with the file name"),
+        (lambda r: r["tensors"].update(file="/etc/passwd"), "must be a plain \\*.safetensors name"),
+        (lambda r: r["tensors"].update(file="../x.safetensors"), "must be a plain \\*.safetensors name"),
+        (lambda r: r["env"]["rng"]["state"].update(state="x"), "not a valid random-generator state"),
+        (lambda r: r.pop("obs_dim"), "'obs_dim' = None must be a positive integer"),
+        (lambda r: r["trainer"].update(episodes=1.5), "trainer.episodes = 1.5 must be an integer >= 0"),
+        (lambda r: r["trainer"]["optimizer_param_groups"][0].pop("eps"), "optimizer_param_groups\\[0\\].eps"),
+        (lambda r: r["trainer"].update(learning_rate="fast"), "learning_rate = 'fast' must be a finite"),
+    ],
+)
+def test_checkpoint_metadata_is_checked_by_type_and_meaning(
+    tmp_path: Path, capsys: pytest.CaptureFixture, change, message: str
+) -> None:
+    out = tmp_path / "run"
+    train_run(tiny(run__iterations=2), out)
+    path = _edit_checkpoint(out, change)
+    before = snapshot(out)
+    code, _, err = run_cli(capsys, "train", "--resume", "--out", str(out), "--iterations", "4")
+    assert code == 2 and err.count("\n") == 1, err
+    assert str(path) in err and re.search(message, err), err
+    assert snapshot(out) == before
+
+
+def test_altered_checkpoint_metadata_fails_its_hash(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    train_run(tiny(run__iterations=2), out)
+    path = list_checkpoints(out / "checkpoints")[-1][1]
+    record = json.loads(path.read_text())
+    record["trainer"]["learning_rate"] = 1e308
+    path.write_text(json.dumps(record))
+    with pytest.raises(AmorError, match="checkpoint metadata was altered"):
+        load_checkpoint(path)
+
+
+def test_policy_of_refuses_a_checkpoint_of_another_character(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    train_run(tiny(run__iterations=2), out)
+    _edit_checkpoint(out, lambda r: r.update(env_kind="tracking", character="humanoid36"))
+    run = RunDir(out)
+    with pytest.raises(AmorError, match=r"env kind 'tracking', the run's config .*config.toml. has 'toy'"):
+        run.policy()

@@ -13,7 +13,8 @@ from rich.table import Table
 
 from amorctl.analysis.eval_env import check_objective, close_env, make_eval_env
 from amorctl.analysis.rollout import WeightsSource, rollout
-from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, weight_sweep
+from amorctl.analysis.sweep_ranks import weight_sweep_ranks
+from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS
 from amorctl.analysis.tracking_metrics import EvalResult, evaluate_setting
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, print_json
@@ -23,6 +24,7 @@ from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule, load_schedule
 from amorctl.core.weights import parse_weights
 from amorctl.motion.heldout import config_with_dataset
+from amorctl.train import distributed
 from amorctl.train.rundir import RunDir
 
 ROWS = (
@@ -186,7 +188,14 @@ def evaluate(
     sweep_levels = _parse_levels(levels) if sweep is not None else []
     if sweep is not None:
         check_objective(sweep, names)
-    show = not json_out and console.is_terminal
+    quiet = distributed.launched_rank() != 0  # under torchrun: rank 0 alone evaluates the settings
+    show = not json_out and not quiet and console.is_terminal
+    sweep_doc = None
+    if sweep is not None:  # first, while every torchrun rank takes part (docs/distributed.md)
+        figure = (out if out is not None else run / "evaluate") / f"sweep-{sweep}.png"
+        sweep_doc = _sweep(policy, config, sweep, sweep_levels, motion, episodes, seed, figure, show)
+    if quiet:
+        return
 
     results: list[EvalResult] = []
     for label, source in settings:
@@ -196,10 +205,6 @@ def evaluate(
                 on_step=on_step,
             )  # fmt: skip
         results.append(result)
-    sweep_doc = None
-    if sweep is not None:
-        figure = (out if out is not None else run / "evaluate") / f"sweep-{sweep}.png"
-        sweep_doc = _sweep(policy, config, sweep, sweep_levels, motion, episodes, seed, figure, show)
     video_doc = None
     if video is not None:
         video_doc = _video(video, policy, config, settings[-1][1], motion, video_seconds, seed)
@@ -226,15 +231,18 @@ def evaluate(
 def _sweep(
     policy: Any, config: Any, objective: str, levels: list[float], motions: list[str] | None, episodes: int,
     seed: int, figure: Path, show: bool,
-) -> dict[str, Any]:  # fmt: skip
-    """Run the weight sweep of ``objective``, draw its figure; the ``sweep`` part of the JSON."""
+) -> dict[str, Any] | None:  # fmt: skip
+    """Run the weight sweep of ``objective`` (its episodes split over torchrun's ranks), draw its
+    figure; the ``sweep`` part of the JSON (None on ranks other than 0)."""
     from amorctl.outputs.plots import sweep_figure
 
-    with rollout_progress(show, f"sweep {objective}") as on_step:
-        ws = weight_sweep(
+    with distributed.session() as world, rollout_progress(show, f"sweep {objective}") as on_step:
+        ws = weight_sweep_ranks(
             policy, config, objective, levels=levels, motions=motions, episodes=episodes, seed=seed,
-            on_step=on_step,
+            on_step=on_step, world=world,
         )  # fmt: skip
+    if ws is None:
+        return None
     sweep_figure(ws, figure)
     return {**ws.to_dict(), "figure": str(figure)}
 

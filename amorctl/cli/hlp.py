@@ -7,7 +7,6 @@ import time
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 from rich.console import Group
 from rich.live import Live
@@ -326,13 +325,16 @@ def table2(
 
 def tune_with_hlp(
     run: Path, hlp_dir: Path, motion: str | None, scale: str | None, seconds: float | None,
-    weights: str | None, schedule: Path | None,
-    out: Path | None, plot: Path | None, video: Path | None, stop_on_fall: bool, seed: int,
-    live: bool, host: str, port: int, save_to: Path, json_out: bool,
-) -> None:  # fmt: skip
-    """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md)."""
+    weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int,
+    live: bool, host: str, port: int, save_to: Path, live_outputs: bool,
+) -> tuple[Any, str, dict[str, Any]] | None:  # fmt: skip
+    """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md).
+
+    Serves the live page (returns None) or returns (the :class:`TuneRollout`, the character's
+    name, the ``hlp`` part of the JSON report); ``amorctl tune`` writes and prints the rest.
+    ``live_outputs``: --out/--plot/--video were given (not allowed with --live).
+    """
     from amorctl.cli.output import err_console
-    from amorctl.cli.tune import _check_outputs, _print_table, _result, _write_outputs
     from amorctl.hlp.edit import parse_scales
     from amorctl.hlp.run import load_hlp
     from amorctl.hlp.tune import check_hlp_for, run_hlp_tune
@@ -342,13 +344,10 @@ def tune_with_hlp(
         raise AmorError(
             "--hlp chooses the weights every step; drop --weights / --schedule (edit with --scale)"
         )
-    if live and (out is not None or plot is not None or video is not None):
+    if live and live_outputs:
         raise AmorError("--live takes no --out, --plot or --video (save keyframes on the page)")
     if live and not 0 < port < 65536:
         raise AmorError(f"--port must be in 1..65535, got {port}")
-    _check_outputs([out, plot, video])
-    if video is not None and video.suffix.lower() != ".mp4":
-        raise AmorError(f"--video {video}: the file must end in .mp4")
     hlp = load_hlp(hlp_dir)
     tenv = PinnedMotion(run, motion, seed=seed)
     try:
@@ -361,30 +360,28 @@ def tune_with_hlp(
             serve_hlp_live(
                 session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
             )
-            return
+            return None
         rollout, raw = run_hlp_tune(tenv, hlp, scales, seconds, stop_on_fall=stop_on_fall)
     finally:
         tenv.close()
-    character = tenv.view.character.name if tenv.view is not None else ""
-    _write_outputs(
-        rollout, {"run": str(run), "seed": str(seed), "hlp": str(hlp_dir)}, out, plot, video, character
-    )
-    result = _result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video})
     names = list(rollout.objective_names)
-    result["hlp"] = {
+    extra = {
         "dir": str(hlp_dir),
         "scales": dict(zip(names, scales.tolist(), strict=True)),
         "mean_hlp_weights": dict(zip(names, raw.mean(0).tolist(), strict=True)),
         "mean_weights": dict(zip(names, rollout.weights.mean(0).tolist(), strict=True)),
     }
-    if json_out:
-        print_json(result)
-        return
-    _print_table(result)
+    character = tenv.view.character.name if tenv.view is not None else ""
+    return rollout, character, extra
+
+
+def print_hlp_weights(extra: dict[str, Any]) -> None:
+    """The HLP's mean w_t, the multipliers and the mean applied weights, as a table."""
+    names = list(extra["scales"])
     table = Table("", *names, title="weights: the HLP's w_t (mean) and after --scale (mean)")
-    table.add_row("HLP", *(f"{result['hlp']['mean_hlp_weights'][n]:.3f}" for n in names))
-    table.add_row("× scale", *(f"{result['hlp']['scales'][n]:.2f}" for n in names))
-    table.add_row("applied", *(f"{result['hlp']['mean_weights'][n]:.3f}" for n in names))
+    table.add_row("HLP", *(f"{extra['mean_hlp_weights'][n]:.3f}" for n in names))
+    table.add_row("× scale", *(f"{extra['scales'][n]:.2f}" for n in names))
+    table.add_row("applied", *(f"{extra['mean_weights'][n]:.3f}" for n in names))
     console.print(table)
 
 

@@ -13,9 +13,9 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from amorctl.analysis.eval_env import sweep_weights
+from amorctl.analysis.sweep_ranks import pareto_sweep_ranks
 from amorctl.analysis.sweeps import (
     pareto_csv,
-    pareto_sweep,
     pareto_to_dict,
     parse_reference_point,
 )
@@ -24,6 +24,7 @@ from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
 from amorctl.motion.heldout import config_with_dataset
+from amorctl.train import distributed
 from amorctl.train.rundir import RunDir
 
 MotionOpt = Annotated[
@@ -95,18 +96,21 @@ def pareto(
     weights, sampling = sweep_weights(len(names), samples, grid=grid, seed=seed)
     reference = parse_reference_point(ref_point, names) if ref_point is not None else None
     out_dir = out if out is not None else run / "pareto"
-    show = not json_out and console.is_terminal
-    if not json_out:
+    quiet = distributed.launched_rank() != 0  # under torchrun rank 0 alone prints and writes
+    show = not json_out and not quiet and console.is_terminal
+    if not json_out and not quiet:
         console.print(
             f"[bold]amorctl pareto[/bold] {run} · {len(weights)} weight vectors ({sampling}) × "
             f"{episodes} episode(s) · {len(motion or []) or 'random'} motion(s)",
             highlight=False,
         )
-    with rollout_progress(show, "rollout") as on_step:
-        sweep = pareto_sweep(
+    with distributed.session() as world, rollout_progress(show, "rollout") as on_step:
+        sweep = pareto_sweep_ranks(  # the weight rows split over torchrun's ranks (docs/distributed.md)
             policy, config, weights, motions=motion, episodes=episodes, reference_point=reference,
-            hv_method=hv_method, seed=seed, sampling=sampling, on_step=on_step,  # type: ignore[arg-type]
+            hv_method=hv_method, seed=seed, sampling=sampling, on_step=on_step, world=world,  # type: ignore[arg-type]
         )  # fmt: skip
+    if sweep is None:  # not rank 0: rank 0 writes the files
+        return
 
     from amorctl.outputs.plots import pareto_figure
 

@@ -106,14 +106,33 @@ def tune(
     from amorctl.tune.session import PinnedMotion, run_tune
 
     if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
-        from amorctl.cli.hlp import tune_with_hlp
+        from amorctl.cli.hlp import print_hlp_weights, tune_with_hlp
 
         if data is not None:
             raise AmorError("--hlp runs on the run's own dataset (the HLP was trained on it); drop --data")
-        tune_with_hlp(
-            run, hlp, motion, scale, seconds, weights, schedule, out, plot, video, stop_on_fall, seed, live,
-            host, port, save_to, json_,
+        given = [out, plot, video]
+        _check_outputs(given)
+        if video is not None and video.suffix.lower() != ".mp4":
+            raise AmorError(f"--video {video}: the file must end in .mp4")
+        ran = tune_with_hlp(
+            run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
+            save_to, any(p is not None for p in given),
         )  # fmt: skip
+        if ran is None:  # the live page was served
+            return
+        rollout, character, extra = ran
+        _write_outputs(
+            rollout, {"run": str(run), "seed": str(seed), "hlp": str(hlp)}, out, plot, video, character
+        )
+        result = {
+            **_result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video}),
+            "hlp": extra,
+        }
+        if json_:
+            print_json(result)
+            return
+        _print_table(result)
+        print_hlp_weights(extra)
         return
     if scale is not None:
         raise AmorError("--scale edits the weights an HLP chose; it needs --hlp")

@@ -25,6 +25,7 @@ import binascii
 import hashlib
 import json
 import math
+import struct
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -145,7 +146,8 @@ def write_dataset(
             "latent_dim": str(library.latent_dim),
         }
         own = (HASHES_KEY, "version", "format", "integrity")  # written here, never copied
-        extra = {k: v for k, v in library.metadata.items() if k not in own}
+        # computed keys win over stale copies carried in library.metadata (e.g. a clip subset)
+        extra = {k: v for k, v in library.metadata.items() if k not in own and k not in meta}
         meta.update({k: v if isinstance(v, str) else json.dumps(v) for k, v in extra.items()})
         meta[HASHES_KEY] = json.dumps(hashes)
         writer.add_metadata("amorctl.dataset", meta)
@@ -236,13 +238,21 @@ def check_library(library: MotionLibrary, where: str) -> None:
             )
 
 
+try:
+    from zstandard import ZstdError
+
+    _ZSTD_ERRORS: tuple[type[Exception], ...] = (ZstdError,)
+except ImportError:  # pragma: no cover - mcap's zstd chunks need it, but a reader may lack it
+    _ZSTD_ERRORS = ()
+
+
 def _open_reader(path: Path):  # type: ignore[no-untyped-def]
     if not path.is_file():
         raise AmorError(f"{path}: dataset not found")
     f = open(path, "rb")  # noqa: SIM115 - closed by the caller
     try:
         return f, make_reader(f, validate_crcs=True)
-    except (McapError, ValueError, EOFError, OSError, KeyError, IndexError) as exc:
+    except _READ_ERRORS as exc:
         f.close()
         raise AmorError(f"{path}: not a readable MCAP file: {exc}") from None
 
@@ -261,6 +271,8 @@ _READ_ERRORS = (
     MemoryError,
     RecursionError,
     binascii.Error,
+    struct.error,
+    *_ZSTD_ERRORS,
 )
 
 

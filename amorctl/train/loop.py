@@ -155,8 +155,10 @@ def _restore(
             env.set_state(env_state)
         else:  # the env cannot snapshot: continue from fresh episodes, deterministically seeded
             trainer.reset_env(config.run.seed + ckpt.iteration)
-    except AmorError:
-        raise
+    except AmorError as err:  # the trainer's or env's own check: name the checkpoint
+        if str(ckpt.path) in str(err):
+            raise
+        raise AmorError(f"{ckpt.path}: {err}") from None
     except (TypeError, ValueError, KeyError, IndexError, RuntimeError, OverflowError) as exc:
         raise AmorError(
             f"{ckpt.path}: checkpoint state does not fit this run ({type(exc).__name__}: {exc})"

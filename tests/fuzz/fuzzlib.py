@@ -232,7 +232,8 @@ def check_outcome(
     assert code in (0, 2), f"{what}: exit {code}\n{err}"
     if code == 2:
         lines = err.splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: "), f"{what}: stderr is not one error line:\n{err}"
+        one_line = len(lines) == 1 and lines[0].startswith("error: ")
+        assert one_line, f"{what}: stderr is not one error line:\n{err}"
         assert any(n in lines[0] for n in names), f"{what}: error does not name {names}: {lines[0]}"
         for path in left_out:
             assert not path.exists(), f"{what}: refused, but {path} was left behind"

@@ -37,9 +37,7 @@ EXAMPLES = [
 def _preprocess(directory: Path, source: Path, character: str, *extra: str) -> None:
     """Run preprocess on ``source`` and check the contract; an accepted dataset must load."""
     out = directory / "out" / "d.mcap"
-    result = run_cli(
-        ["preprocess", source, "-c", character, "--out", out, "--no-vae", "--json", *extra]
-    )
+    result = run_cli(["preprocess", source, "-c", character, "--out", out, "--no-vae", "--json", *extra])
 
     def dataset_is_sane(summary: dict) -> None:
         lib = load_dataset(out)  # finite, shapes, >= 2 frames per clip: checked by the loader

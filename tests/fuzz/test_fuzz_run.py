@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ from fuzzlib import (
 from hypothesis import given
 from hypothesis import strategies as st
 
+from amorctl.core.config import tomllib
 from amorctl.train.checkpoint import record_sha256
 
 EXAMPLES = [
@@ -173,9 +173,8 @@ def test_weight_string_variants(examples: int, seed_run: Path) -> None:
         check_outcome(result, ("--weights",), what=repr(text), on_success=sane)
         with scratch() as d:
             out = d / "run"
-            result = run_cli(
-                ["train", "--env", "toy", "--fixed-weights", text, "--iterations", "0", "--out", out, "--json"]
-            )
+            args = ["train", "--env", "toy", "--fixed-weights", text, "--iterations", "0", "--out", out]
+            result = run_cli([*args, "--json"])
             check_outcome(result, ("--fixed-weights",), left_out=(out,), what=repr(text))
 
     variant()
