@@ -99,6 +99,12 @@ def process_clip(
     )
     motion = import_file(path, fmt, opts)
     hz = float(spec.control_hz)
+    duration = float(motion.times[-1] - motion.times[0])
+    if duration * hz < 1.0:  # resampled, it would be one frame: nothing to track
+        raise AmorError(
+            f"{path}: the clip lasts {duration:.3g} s, less than one control step at {hz:g} Hz "
+            "(a frame rate far too high?); a motion needs at least 2 frames"
+        )
     if isinstance(motion, CharacterMotion):
         if motion.character != spec.name:
             raise AmorError(f"{path}: holds motion for {motion.character!r}, not {spec.name!r}")

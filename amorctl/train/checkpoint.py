@@ -257,7 +257,7 @@ def _like(path: Path, where: str, want: Any, got: Any) -> None:
             raise AmorError(f"{path}: {where}.{diff} is {'missing' if diff in want else 'unexpected'}")
         for key in want:
             _like(path, f"{where}.{key}", want[key], got[key])
-    elif isinstance(want, list):
+    elif isinstance(want, list | tuple):  # torch keeps some lists (Adam's betas) as tuples
         if not isinstance(got, list):
             raise AmorError(f"{path}: {where} must be a list, got {type(got).__name__}")
         for i, item in enumerate(got):
