@@ -57,7 +57,12 @@ def _roll(env: TrackingEnv, actions: np.ndarray) -> list[dict[str, np.ndarray]]:
 
 def _through_files(state: Snapshot, directory: Path) -> Snapshot:
     """The state as a checkpoint stores and reloads it (safetensors + JSON)."""
-    path = save_checkpoint(directory, 1, {}, Snapshot(), state)
+    meta = {  # what a tracking run's checkpoint carries (train.rundir.run_meta)
+        "amorctl_version": "test", "backend": "torch-cpu", "env_kind": "tracking", "character": "biped20",
+        "gym_id": None, "objective_set": "tracking7", "objectives": ["up"], "obs_dim": 1, "action_dim": 1,
+        "fixed_weights": "",
+    }  # fmt: skip
+    path = save_checkpoint(directory, 1, meta, Snapshot(), state)
     loaded = load_checkpoint(path).env
     assert loaded is not None
     return loaded

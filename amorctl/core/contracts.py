@@ -188,6 +188,8 @@ class TrackingView(Protocol):
     dt: float  # seconds per control step
     max_episode_steps: int
     num_envs: int
+    fall_drop: float  # m: terminated when the root is this far below the reference's root
+    future_frames: tuple[int, ...]  # extra reference frames in the observation (offsets, control steps)
 
     @property
     def model(self) -> mujoco.MjModel:

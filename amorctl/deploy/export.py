@@ -83,32 +83,13 @@ class EnvFacts:
 
 
 def _env_facts(env: Any) -> EnvFacts:
-    """The observation layout, character, fall drop (m) and future-frame offsets of a run's env.
-
-    ENV INTERNALS, in this one place: the layout comes from ``TrackingView.observation_layout``
-    when the env provides a tracking view; until every env does, it falls back to the tracking
-    env's ``obs_layout`` (slices). The fall drop and the future-frame offsets are not part of
-    any contract yet, so they are read from the env's ``fall_drop`` / ``future_frames``.
-    """
+    """The observation layout, character, fall drop (m) and future-frame offsets of a run's env,
+    read through its :class:`~amorctl.core.contracts.TrackingView` (empty for envs without one)."""
     view = tracking_view(env)
-    inner = env
-    for _ in range(8):  # through wrappers to the env that has the attributes
-        if hasattr(inner, "obs_layout") or not hasattr(inner, "env"):
-            break
-        inner = inner.env
-    if view is not None:
-        layout = {k: (int(a), int(b)) for k, (a, b) in view.observation_layout.items()}
-        character: CharacterSpec | None = view.character
-    elif hasattr(inner, "obs_layout"):
-        layout = {k: (int(s.start), int(s.stop)) for k, s in inner.obs_layout.items()}
-        character = getattr(inner, "character", None)
-    else:
+    if view is None:
         return EnvFacts({}, None, None, [])
-    drop = getattr(inner, "fall_drop", None)
-    if drop is None and character is not None:
-        drop = character.standing_height / 3.0  # TrackingEnv's default fall rule
-    future = [int(o) for o in getattr(inner, "future_frames", ())]
-    return EnvFacts(layout, character, None if drop is None else float(drop), future)
+    layout = {k: (int(a), int(b)) for k, (a, b) in view.observation_layout.items()}
+    return EnvFacts(layout, view.character, float(view.fall_drop), [int(o) for o in view.future_frames])
 
 
 # ---------------------------------------------------------------------------- policy arrays
