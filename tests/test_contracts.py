@@ -58,6 +58,8 @@ class StubView:
         self.dt = env.dt
         self.max_episode_steps = env.max_episode_steps
         self.num_envs = env.num_envs
+        self.fall_drop = 0.3
+        self.future_frames: tuple[int, ...] = ()
 
     model = property(lambda self: self._env.model)
     clip_names = property(lambda self: tuple(CLIPS))

@@ -29,6 +29,8 @@ class MjxTrackingView:
         self.dt = float(env.dt)
         self.max_episode_steps = int(env.max_episode_steps)
         self.num_envs = int(env.num_envs)
+        self.fall_drop = float(env.fall_drop)
+        self.future_frames = tuple(int(o) for o in env.future_frames)
         lib = env.library
         self._clip_names = tuple(c.name for c in lib.clips)
         self._clip_seconds = np.array([lib.clip_duration(c) for c in lib.clips], dtype=np.float64)
