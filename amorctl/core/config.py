@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
@@ -344,9 +344,15 @@ def load_preset(name: str) -> TrainConfig:
 def to_toml(config: TrainConfig) -> str:
     """The fully resolved config as TOML (written by tomlkit), each field with its doc as a
     comment; :func:`load_config` reads it back to an equal config."""
+    return sections_to_toml(config, SECTIONS, "amorctl training config, fully resolved")
+
+
+def sections_to_toml(config: Any, sections: Sequence[str], title: str) -> str:
+    """A config dataclass made of section dataclasses as TOML (tomlkit): one table per section,
+    each field commented with its ``doc`` metadata. Shared by the training and HLP configs."""
     doc = tomlkit.document()
-    doc.add(tomlkit.comment("amorctl training config, fully resolved"))
-    for section in SECTIONS:
+    doc.add(tomlkit.comment(title))
+    for section in sections:
         obj = getattr(config, section)
         table = tomlkit.table()
         for f in fields(obj):

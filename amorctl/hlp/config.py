@@ -17,12 +17,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, get_args, get_origin, get_type_hints
 
+from amorctl.core.config import read_toml, sections_to_toml
 from amorctl.core.errors import AmorError
 
 if sys.version_info >= (3, 11):
-    import tomllib
+    pass
 else:  # pragma: no cover
-    import tomli as tomllib
+    pass
 
 
 def _doc(default: Any, text: str) -> Any:
@@ -206,17 +207,6 @@ def validate(config: HlpConfig, source: str = "config") -> HlpConfig:
     return config
 
 
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file; AmorError names a missing or malformed file."""
-    path = Path(path)
-    if not path.is_file():
-        raise AmorError(f"{path}: config file not found")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise AmorError(f"{path}: not valid TOML: {exc}") from None
-
-
 def load_hlp_config(path: str | Path, base: HlpConfig | None = None) -> HlpConfig:
     """A (partial) HLP TOML file on top of ``base`` (default: the schema defaults)."""
     return merge(base or HlpConfig(), read_toml(path), str(path))
@@ -229,24 +219,6 @@ def load_hlp_preset(name: str) -> HlpConfig:
     return load_hlp_config(Path(str(resources.files("amorctl.presets").joinpath(f"hlp_{name}.toml"))))
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-
-
 def to_toml(config: HlpConfig) -> str:
-    """The fully resolved config as commented TOML; :func:`merge` reads it back."""
-    lines = ["# amorctl HLP config, fully resolved", ""]
-    for section in SECTIONS:
-        obj = getattr(config, section)
-        lines.append(f"[{section}]")
-        lines += [
-            f"{f.name} = {_toml_value(getattr(obj, f.name))}  # {f.metadata['doc']}" for f in fields(obj)
-        ]
-        lines.append("")
-    return "\n".join(lines)
+    """The fully resolved config as commented TOML (tomlkit); :func:`merge` reads it back."""
+    return sections_to_toml(config, SECTIONS, "amorctl HLP config, fully resolved")
