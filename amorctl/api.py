@@ -17,7 +17,9 @@ What is here, by plugin kind (see ``docs/plugins.md``):
   :func:`get_registry` (other installed plugins, by name);
 - characters: :class:`CharacterSpec`, :class:`JointSpec`, :class:`ActuatorModel`,
   :data:`KEYPOINTS`, :data:`JOINT_GROUPS`, :func:`character_from_mjcf` (a spec read from a model
-  file), :func:`package_file` (a model inside another installed package), :func:`plugin_cache_dir`;
+  file), :func:`package_file` (a model inside another installed package) and its lazy form
+  :func:`package_model` (a :data:`ModelSource`, resolved on first use), :class:`LazyCharacter` (a
+  spec built on first use), :func:`plugin_cache_dir`;
 - objective sets: :class:`ObjectiveSetSpec`, :class:`ObjectiveSet`, :class:`TrackingInputs`,
   :class:`FrameParts`, :func:`split_frame`, :func:`frame_dim`;
 - backends: :class:`BackendSpec`, :class:`Backend`, :class:`Trainer`, :class:`Policy`,
@@ -57,8 +59,12 @@ from amorctl.core.specs import (
     ImportOptions,
     JointGroup,
     JointSpec,
+    LazyCharacter,
+    ModelSource,
     MotionFormatSpec,
     ObjectiveSetSpec,
+    PackageModel,
+    package_model,
 )
 from amorctl.core.vecenv import VectorEnv
 from amorctl.motion.formats.base import file_sha256
@@ -88,9 +94,12 @@ __all__ = [
     "ImportOptions",
     "JointGroup",
     "JointSpec",
+    "LazyCharacter",
+    "ModelSource",
     "MotionFormatSpec",
     "ObjectiveSet",
     "ObjectiveSetSpec",
+    "PackageModel",
     "Policy",
     "Skeleton",
     "Snapshot",
@@ -111,6 +120,7 @@ __all__ = [
     "get_registry",
     "hookimpl",
     "package_file",
+    "package_model",
     "plugin_cache_dir",
     "split_frame",
     "tracking_view",

@@ -24,7 +24,7 @@ from typing import Any
 import pluggy
 
 from amorctl.core.errors import AmorError
-from amorctl.core.specs import BackendSpec, CharacterSpec, MotionFormatSpec, ObjectiveSetSpec
+from amorctl.core.specs import BackendSpec, CharacterSpec, LazyCharacter, MotionFormatSpec, ObjectiveSetSpec
 
 PROJECT = "amorctl"
 ENTRY_POINT_GROUP = "amorctl"
@@ -39,8 +39,9 @@ class HookSpecs:
     """One hook per plugin kind."""
 
     @hookspec
-    def amorctl_register_characters(self, register: Callable[[CharacterSpec], None]) -> None:
-        """Call ``register(spec)`` once for every :class:`CharacterSpec` this plugin provides."""
+    def amorctl_register_characters(self, register: Callable[[CharacterSpec | LazyCharacter], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`CharacterSpec` (or :class:`LazyCharacter`,
+        built on first use) this plugin provides."""
 
     @hookspec
     def amorctl_register_objective_sets(self, register: Callable[[ObjectiveSetSpec], None]) -> None:
@@ -56,9 +57,9 @@ class HookSpecs:
         plugin provides; ``amorctl preprocess`` picks one by ``--format`` or by file suffix."""
 
 
-#: plugin kind -> (hook name, spec type)
-KINDS: dict[str, tuple[str, type]] = {
-    "character": ("amorctl_register_characters", CharacterSpec),
+#: plugin kind -> (hook name, spec type or types)
+KINDS: dict[str, tuple[str, type | tuple[type, ...]]] = {
+    "character": ("amorctl_register_characters", (CharacterSpec, LazyCharacter)),
     "objective-set": ("amorctl_register_objective_sets", ObjectiveSetSpec),
     "backend": ("amorctl_register_backends", BackendSpec),
     "motion-format": ("amorctl_register_motion_formats", MotionFormatSpec),
@@ -99,12 +100,19 @@ class Registry:
         return sorted(self.items[kind])
 
     def get(self, kind: str, name: str) -> Any:
-        """The spec of one registered thing; unknown names raise :class:`AmorError`."""
+        """The spec of one registered thing; unknown names raise :class:`AmorError`. A
+        :class:`LazyCharacter` is built here, once (its failure is an AmorError naming it)."""
         try:
-            return self.items[kind][name]
+            item = self.items[kind][name]
         except KeyError:
             installed = ", ".join(self.names(kind)) or "none"
             raise AmorError(f"unknown {kind} {name!r} (installed: {installed})") from None
+        if isinstance(item, LazyCharacter):
+            item = self.items[kind][name] = _build_lazy(item, self._plugin_of(kind, name))
+        return item
+
+    def _plugin_of(self, kind: str, name: str) -> str:
+        return next((p.plugin for p in self.provided if p.kind == kind and p.name == name), "?")
 
     def character(self, name: str) -> CharacterSpec:
         return self.get("character", name)
@@ -117,6 +125,22 @@ class Registry:
 
     def motion_format(self, name: str) -> MotionFormatSpec:
         return self.get("motion-format", name)
+
+
+def _build_lazy(lazy: LazyCharacter, plugin: str) -> CharacterSpec:
+    """Build a :class:`LazyCharacter`'s spec; any failure becomes one AmorError naming it."""
+    try:
+        spec = lazy.build()
+    except AmorError as exc:
+        raise AmorError(f"character {lazy.name!r} (plugin {plugin!r}): {exc}") from None
+    except Exception as exc:  # the plugin's own code: report it, never a traceback
+        raise AmorError(
+            f"character {lazy.name!r} (plugin {plugin!r}) could not be built: {type(exc).__name__}: {exc}"
+        ) from None
+    if not isinstance(spec, CharacterSpec) or spec.name != lazy.name:
+        got = getattr(spec, "name", type(spec).__name__)
+        raise AmorError(f"character {lazy.name!r} (plugin {plugin!r}): its build returned {got!r}")
+    return spec
 
 
 def _blocked_names() -> set[str]:
@@ -212,11 +236,14 @@ def _import_plugins(eps: Iterable[EntryPoint], registry: Registry) -> list[tuple
 
 
 def _registrar(
-    registry: Registry, kind: str, spec_type: type, plugin: str, package: str, version: str
+    registry: Registry, kind: str, spec_type: type | tuple[type, ...], plugin: str, package: str, version: str
 ) -> Callable[[Any], None]:
     def register(spec: Any) -> None:
         if not isinstance(spec, spec_type):
-            raise TypeError(f"{kind} plugins must register {spec_type.__name__}, got {type(spec).__name__}")
+            want = " or ".join(
+                t.__name__ for t in (spec_type if isinstance(spec_type, tuple) else (spec_type,))
+            )
+            raise TypeError(f"{kind} plugins must register {want}, got {type(spec).__name__}")
         existing = registry.items[kind].get(spec.name)
         if existing is not None:
             first = next(p for p in registry.provided if p.kind == kind and p.name == spec.name)
@@ -229,6 +256,25 @@ def _registrar(
         _trace(f"{plugin} ({package}) registered {kind} {spec.name!r}")
 
     return register
+
+
+def load_plugin(plugin: str) -> Registry:
+    """A registry of the single installed plugin whose entry point is named ``plugin`` (what a
+    tool that needs one plugin loads, e.g. the torch-free deploy runtime its objective set,
+    without importing every other plugin and what they import).
+
+    Raises:
+        AmorError: no installed plugin of that name, or it is blocked or broken.
+    """
+    eps = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == plugin]
+    if not eps:
+        raise AmorError(f"plugin {plugin!r} is not installed")
+    registry = load_registry(eps)
+    for problem in registry.problems:
+        raise AmorError(
+            f"plugin {plugin!r} ({problem.package}) is {problem.status}: {problem.error}".rstrip(": ")
+        )
+    return registry
 
 
 _CACHED: Registry | None = None

@@ -6,11 +6,15 @@ and, in the same run, the single-thread ``mj_step`` rate on the same model from 
 The ratio is ``env steps/s / (single-thread mj_step rate / substeps * nthread)``; 1.0 would be
 perfect scaling with no glue cost. By default the clips are synthetic (swaying in place), so no
 dataset is needed; ``--clips builtin`` tracks the preprocessed DeepMimic clips instead. One line
-per setting, ending in ``ratio: X.XX``. Run with ``nice -n 10`` on shared machines; figures are
-noisy there.
+per setting, ending in ``ratio: X.XX``. Servo characters (biped20) are measured with both servo
+implementations, side by side: ``native`` (MuJoCo's dcmotor + history delay, what the env runs)
+and ``python`` (the numpy reference between single physics steps; the state before the servo
+moved into MuJoCo); ``--servo-models`` picks. Each setting's bound uses its own model, so the
+native one's bound includes the servo's cost in C. Run under the shared lock (and ``taskset`` to
+pin cores); figures are noisy on shared machines.
 
     python benchmarks/env_throughput.py [--characters humanoid36 biped20] [--envs 256 1024]
-        [--clips synthetic|builtin] [--seconds 4]
+        [--clips synthetic|builtin] [--seconds 4] [--nthread 2] [--servo-models native python]
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import numpy as np
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
-from amorctl.sim.batch_sim import STATE_SPEC
+from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
 
 
 def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -> float:
@@ -34,7 +38,7 @@ def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -
     d = mujoco.MjData(m)
     ids = np.linspace(0, env.num_envs - 1, min(samples, env.num_envs)).astype(int)
     ctrl = sim.ctrl[:, 0].copy()  # timed actions include noise; these are the last ones applied
-    if sim.servo:  # motor actuators: replay the last computed servo torques
+    if sim.python_servo:  # motor actuators: replay the last computed servo torques
         ctrl[:, sim.actuators] = sim.torque[:, -1] / sim.gear
     best = 0.0
     for _ in range(repeats):
@@ -52,12 +56,19 @@ def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -
 
 
 def measure(
-    character: str, num_envs: int, nthread: int, seconds: float, clips: str = "synthetic", seed: int = 0
+    character: str,
+    num_envs: int,
+    nthread: int,
+    seconds: float,
+    clips: str = "synthetic",
+    seed: int = 0,
+    servo_model: str = "native",
 ) -> dict[str, float]:
     """Env steps/s and the ratio for one setting.
 
     ``clips``: ``"synthetic"`` (swaying clips, no data needed) or ``"builtin"`` (the character's
     preprocessed DeepMimic dataset from the user cache; built on first use, which takes minutes).
+    ``servo_model``: ``"native"`` or ``"python"`` (servo characters; see the module docstring).
     """
     ch = get_registry().character(character)
     if clips == "builtin":
@@ -68,6 +79,9 @@ def measure(
     else:
         lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=seed)
     env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=seed, max_episode_steps=200)
+    if ch.actuator.kind == "servo" and servo_model != "native":  # the reference servo, for comparison
+        env.sim.close()
+        env.sim = BatchSim(ch, num_envs, nthread=nthread, servo_model=servo_model)  # type: ignore[arg-type]
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
 
@@ -121,18 +135,31 @@ def main() -> None:
     parser.add_argument("--nthread", type=int, default=2)
     parser.add_argument("--seconds", type=float, default=4.0, help="timed seconds per setting")
     parser.add_argument("--clips", choices=["synthetic", "builtin"], default="synthetic")
+    parser.add_argument(
+        "--servo-models", nargs="+", choices=["native", "python"], default=["native", "python"],
+        help="servo implementations to measure for servo characters",
+    )  # fmt: skip
     args = parser.parse_args()
+    registry = get_registry()
     for character in args.characters:
+        servo = registry.character(character).actuator.kind == "servo"
         for n in args.envs:
-            r = measure(character, n, args.nthread, args.seconds, args.clips)
-            print(
-                f"{character:<12} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
-                f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
-                f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
-                f"resets/step: {r['resets_per_step']:.2f}  physics share: {r['physics_share']:.0%}  "
-                f"ratio: {r['ratio']:.2f}",
-                flush=True,
-            )
+            for model in args.servo_models if servo else ["native"]:
+                report(character, n, model if servo else "", args)
+
+
+def report(character: str, n: int, servo_model: str, args: argparse.Namespace) -> None:
+    """Measure one setting and print its line."""
+    r = measure(character, n, args.nthread, args.seconds, args.clips, servo_model=servo_model or "native")
+    label = f"{character}/{servo_model}" if servo_model else character
+    print(
+        f"{label:<18} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
+        f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
+        f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
+        f"resets/step: {r['resets_per_step']:.2f}  physics share: {r['physics_share']:.0%}  "
+        f"ratio: {r['ratio']:.2f}",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

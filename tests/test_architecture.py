@@ -309,3 +309,18 @@ def test_api_exports_every_spec_and_contract() -> None:
         }
         assert classes <= public, f"{module.__name__}: not re-exported by amorctl.api: {classes - public}"
     assert all(hasattr(api, n) for n in api.__all__)
+
+
+#: Longest a module may be: past this it does more than one job; split it (docs/architecture.md).
+MAX_MODULE_LINES = 500
+
+
+def test_no_module_is_over_500_lines() -> None:
+    long = {
+        str(path.relative_to(ROOT)): n
+        for path in modules().values()
+        if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, f"modules over {MAX_MODULE_LINES} lines (split them): " + ", ".join(
+        f"{p} ({n})" for p, n in sorted(long.items())
+    )

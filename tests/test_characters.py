@@ -277,7 +277,8 @@ def test_biped20_holds_its_standing_pose_for_5_s_through_the_servo_model() -> No
 @pytest.mark.parametrize("name", ["humanoid36", "biped20", "stickman12"])
 def test_one_compiler_kinematics_and_simulation_see_the_same_model(name: str) -> None:
     """``load_model`` (kinematics, retargeting) and ``build_model`` (the batched simulation) are one
-    compiler: the simulation's model only adds amorctl's sensors."""
+    compiler: the simulation's model only adds amorctl's sensors (and, for servo characters, makes
+    the actuators native servos: tests/test_actuators.py)."""
     from amorctl.sim.batch_sim import build_model
 
     spec = get_registry().character(name)
@@ -285,9 +286,11 @@ def test_one_compiler_kinematics_and_simulation_see_the_same_model(name: str) ->
     for field in ("nq", "nv", "nu", "nbody", "njnt", "ngeom"):
         assert getattr(plain, field) == getattr(sim, field), field
     arrays = ("body_mass", "body_inertia", "dof_armature", "dof_damping", "actuator_gainprm", "geom_size")
+    if spec.actuator.kind == "servo":
+        arrays = arrays[:4] + arrays[5:]
     for array in arrays:
         np.testing.assert_array_equal(getattr(plain, array), getattr(sim, array), err_msg=array)
     assert plain.opt.timestep == sim.opt.timestep == 1.0 / spec.physics_hz
-    extra = 3 * len(spec.end_effectors) + (spec.num_joints if spec.actuator.kind == "pd" else 0)
+    extra = 3 * len(spec.end_effectors) + spec.num_joints  # + one actuatorfrc per joint
     assert sim.nsensor - plain.nsensor == extra
     assert plain.body_mass.sum() > 0.5

@@ -154,17 +154,19 @@ def test_a_trained_toy_policy_flips_its_action_with_w_through_onnx(toy_run: Path
 def test_runtime_reproduces_tunes_trajectory_for_two_seconds(
     bundle_dir: Path, deploy_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from amorctl.outputs.mcap_log import TOPIC_JOINTS, read_rollout_mcap
+    from amorctl.outputs.mcap_log import TOPIC_JOINTS, TOPIC_REWARDS, read_rollout_mcap
 
     w = "up=3,lo=1,feet=1,rbs=1,root=1,vel=1,smooth=2"
     log = tmp_path / "tune.mcap"
     code, _, err = _cli(["tune", str(deploy_run), "--motion", "sway_a", "--weights", w, "--seconds", "2",
                          "--no-stop-on-fall", "--out", str(log)], capsys)  # fmt: skip
     assert code == 0, err
-    tune_q = np.array([m["position"] for m in read_rollout_mcap(log)[TOPIC_JOINTS]])
+    topics = read_rollout_mcap(log)
+    tune_q = np.array([m["position"] for m in topics[TOPIC_JOINTS]])
+    tune_r = np.array([[m[o] for o in TRACKING7] for m in topics[TOPIC_REWARDS]])
     from amorctl.core.weights import parse_weights
 
-    rt = Runtime(read_bundle(bundle_dir))
+    rt = Runtime(read_bundle(bundle_dir), rewards=True)
     res = rt.run(parse_weights(w, TRACKING7), motion="sway_a", seconds=2.0, stop_on_fall=False, record=True)
     q = np.array([r.joint_pos for r in res.records])
     assert q.shape == tune_q.shape == (100, 20)
@@ -173,48 +175,112 @@ def test_runtime_reproduces_tunes_trajectory_for_two_seconds(
     keep = np.setdiff1d(np.arange(100), fell)
     assert len(keep) >= 95
     assert np.max(np.abs(q[keep] - tune_q[keep])) < 1e-5  # stated tolerance: 1e-5 rad over 2 s
+    # the runtime's rewards (numpy kernels of the bundle's objective set) are the torch-cpu
+    # tracking env's (tune's /rewards, float32) for the same states: stated tolerance 1e-5
+    # (measured: 1.5e-7, float32 rounding)
+    r = np.array([rec.rewards for rec in res.records])
+    assert r.shape == tune_r.shape == (100, 7)
+    assert np.max(np.abs(r[keep] - tune_r[keep])) < 1e-5
+    assert res.returns is not None and list(res.returns) == list(TRACKING7)
+    assert np.allclose(list(res.returns.values()), r.sum(axis=0))
 
 
-def test_runtime_runs_with_torch_unimportable_and_imports_only_numpy_mujoco_onnxruntime(
-    bundle_dir: Path, tmp_path: Path
-) -> None:
+#: a sitecustomize that makes torch unimportable: a finder first in sys.meta_path refuses it
+BLOCK_TORCH = """import sys
+class _NoTorch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "torch" or name.startswith("torch."):
+            raise ModuleNotFoundError(f"No module named {name!r} (blocked by the test)", name=name)
+        return None
+sys.meta_path.insert(0, _NoTorch())
+"""
+
+
+def _no_torch_env(tmp_path: Path) -> dict[str, str]:
     shim = tmp_path / "shim"
-    shim.mkdir()
-    (shim / "sitecustomize.py").write_text("import sys\nsys.modules['torch'] = None\n")
-    env = {**os.environ, "PYTHONPATH": str(shim)}
+    shim.mkdir(exist_ok=True)
+    (shim / "sitecustomize.py").write_text(BLOCK_TORCH)
+    return {**os.environ, "PYTHONPATH": str(shim)}
+
+
+def test_amorctl_deploy_run_and_check_work_with_torch_unimportable(bundle_dir: Path, tmp_path: Path) -> None:
+    """The plain `amorctl` entry point (console script and `python -m amorctl`) runs `deploy run`
+    and `deploy check` without torch; the run's MCAP log carries per-objective rewards."""
+    from amorctl.outputs.mcap_log import TOPIC_REWARDS, TOPIC_WEIGHTS, read_rollout_mcap
+
+    env = _no_torch_env(tmp_path)
+    blocked = subprocess.run([sys.executable, "-c", "import torch"], env=env, capture_output=True, text=True)
+    assert blocked.returncode != 0 and "blocked by the test" in blocked.stderr
     log = tmp_path / "run.mcap"
-    cmd = [sys.executable, "-m", "amorctl.cli.deploy", "run", str(bundle_dir), "--motion", "sway_b",
-           "--weights", "up=1,smooth=1", "--seconds", "0.5", "--out", str(log), "--json"]  # fmt: skip
+    script = Path(sys.executable).with_name("amorctl")
+    entry = [str(script)] if script.is_file() else [sys.executable, "-m", "amorctl"]
+    cmd = [*entry, "deploy", "run", str(bundle_dir), "--motion", "sway_b", "--weights", "up=1,smooth=1",
+           "--seconds", "0.5", "--out", str(log), "--json"]  # fmt: skip
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     info = json.loads(proc.stdout)
-    assert info["steps"] >= 1 and log.is_file()
-    probe = (
-        "import sys, numpy as np\n"
-        "from amorctl.deploy.bundle import read_bundle\n"
-        "from amorctl.deploy.runtime import Runtime\n"
-        "from amorctl.deploy.check import run_check\n"
-        f"rt = Runtime(read_bundle({str(bundle_dir)!r}))\n"
-        "rt.run(np.full(7, 1 / 7), seconds=0.1)\n"
-        "print(sorted({m.split('.')[0] for m in sys.modules if sys.modules[m] is not None}))\n"
-    )
-    proc = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120)
+    assert info["steps"] == 25 and log.is_file()
+    topics = read_rollout_mcap(log)
+    assert len(topics[TOPIC_WEIGHTS]) == 25
+    rewards = topics[TOPIC_REWARDS]
+    assert len(rewards) == 25
+    r = np.array([[m[o] for o in TRACKING7] for m in rewards])
+    assert all(list(m) == ["t", *TRACKING7] for m in rewards)  # one per objective, in order
+    assert np.isfinite(r).all()
+    assert (r[:, :6] >= 0).all() and (r[:, :6] <= 2.0).all() and (r[:, 6] <= 1.0).all()  # tracking7 bounds
+    assert r[:, :6].min() > 1.0  # alive bonus 1 + a tracking term in (0, 1] on every step (no fall)
+    assert np.allclose(r.sum(axis=0), [info["returns"][o] for o in TRACKING7])
+
+    check = [sys.executable, "-m", "amorctl", "deploy", "check", str(bundle_dir), "--episodes", "1",
+             "--seconds", "0.2", "--weights", "smooth=1", "--json"]  # fmt: skip
+    proc = subprocess.run(check, env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    loaded = set(eval(proc.stdout.strip().splitlines()[-1]))
-    assert {"numpy", "mujoco", "onnxruntime"} <= loaded
-    banned = {
-        "torch",
-        "pluggy",
-        "scipy",
-        "safetensors",
-        "typer",
-        "rich",
-        "tomlkit",
-        "foxglove",
-        "mcap",
-        "onnx",
-    }
-    assert not loaded & banned
+    assert [c["label"] for c in json.loads(proc.stdout)["conditions"]] == ["uniform", "weights"]
+
+
+def test_runtime_imports_only_numpy_mujoco_onnxruntime(bundle_dir: Path, tmp_path: Path) -> None:
+    """The runtime library itself (no CLI): only numpy, mujoco and onnxruntime, and with rewards
+    also the objective set's plugin (amorctl's plugin API: pluggy, tomlkit), never torch."""
+    env = _no_torch_env(tmp_path)
+    banned = {"torch", "scipy", "safetensors", "typer", "rich", "foxglove", "mcap", "onnx", "jax"}
+    for rewards, also_banned in ((False, {"pluggy", "tomlkit"}), (True, set())):
+        probe = (
+            "import sys, numpy as np\n"
+            "from amorctl.deploy.bundle import read_bundle\n"
+            "from amorctl.deploy.runtime import Runtime\n"
+            "from amorctl.deploy.check import run_check\n"
+            f"rt = Runtime(read_bundle({str(bundle_dir)!r}), rewards={rewards})\n"
+            "res = rt.run(np.full(7, 1 / 7), seconds=0.1)\n"
+            "assert (res.returns is not None) == (rt.reward_meter is not None)\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules if sys.modules[m] is not None}))\n"
+        )
+        proc = subprocess.run(
+            [sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 0, proc.stderr
+        loaded = set(eval(proc.stdout.strip().splitlines()[-1]))
+        assert {"numpy", "mujoco", "onnxruntime"} <= loaded
+        assert not loaded & (banned | also_banned), loaded & (banned | also_banned)
+
+
+def test_perfect_tracking_of_the_reference_gets_the_maximal_reward(bundle_dir: Path) -> None:
+    from amorctl.deploy.runtime_rewards import load_reward_meter
+
+    b = read_bundle(bundle_dir)
+    meter = load_reward_meter(b)
+    assert meter.names == TRACKING7
+    f, j = 7, b.spec.num_joints
+    q = b.motions.joint_pos[f]
+    zeros = np.zeros(j)
+    perfect = meter(meter.ref_frames[f], f, np.zeros((b.spec.substeps, j)), q, q, q, zeros, alive=True)
+    assert np.allclose(perfect, meter.high) and np.allclose(perfect, [2.0] * 6 + [1.0])
+    off = meter.ref_frames[f].copy()
+    off[13:16] += 0.2  # three joint angles 0.2 rad off: some joint-position objectives drop
+    worse = meter(off, f, np.zeros((b.spec.substeps, j)), q, q, q, zeros, alive=True)
+    assert (worse <= perfect + 1e-12).all() and (worse < perfect - 1e-3).any()
+    fallen = meter(meter.ref_frames[f], f, np.zeros((b.spec.substeps, j)), q, q, q, zeros, alive=False)
+    assert np.allclose(fallen, perfect - 1.0)  # no survival bonus on the step that falls
+    assert not meter(off, f, np.zeros((b.spec.substeps, j)), q, q, q, zeros, alive=True, diverged=True).any()
 
 
 def _live_script(rt: Runtime, port: int, sends: dict[int, list[bytes]], clock: list[float]):

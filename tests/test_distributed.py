@@ -9,7 +9,6 @@ a few seconds, most of it importing torch.
 from __future__ import annotations
 
 import csv
-import io
 import json
 import os
 import signal
@@ -40,7 +39,8 @@ TINY = {
 }  # fmt: skip
 TIMEOUT_S = 20.0  # AMORCTL_DIST_TIMEOUT of the launched ranks
 B, MINIBATCHES, EPOCHS = 64, 4, 2  # the fixed batch of the update test
-SWEEP_K, SWEEP_E = 16, 8  # weight vectors and episodes of the Pareto test
+SWEEP_K, SWEEP_E = 15, 8  # weight vectors and episodes of the Pareto test (blocks 8 + 7)
+SWEEP_LEVEL_E = 5  # episodes per level of the weight sweep (blocks 3 + 2)
 
 
 def tiny_config(**sections: dict) -> TrainConfig:
@@ -216,24 +216,20 @@ def main_cli(directory: Path, world: distributed.World) -> None:
     sys.exit(main(["train", "--out", str(run), "--json", *how]))
 
 
+def sweep_commands(directory: Path) -> tuple[list[str], list[str]]:
+    """``amorctl pareto`` and ``amorctl evaluate --sweep`` of the run in ``directory/run``."""
+    run, out = str(directory / "run"), str(directory)
+    pareto = ["pareto", run, "--samples", str(SWEEP_K), "--episodes", str(SWEEP_E), "--out", f"{out}/p"]
+    evaluate = ["evaluate", run, "--sweep", "right", "--episodes", str(SWEEP_LEVEL_E), "--out", f"{out}/e"]
+    return pareto, evaluate  # fmt: skip
+
+
 def main_pareto(directory: Path, world: distributed.World) -> None:
     """``amorctl pareto`` and ``amorctl evaluate --sweep`` of the toy run in ``directory/run``."""
     from amorctl.cli.main import main
 
-    run, common = str(directory / "run"), ["--seed", "3", "--json"]
-    pareto = [
-        "pareto",
-        run,
-        "--samples",
-        str(SWEEP_K),
-        "--episodes",
-        str(SWEEP_E),
-        "--out",
-        str(directory / "p"),
-    ]
-    assert main([*pareto, *common]) == 0
-    evaluate = ["evaluate", run, "--sweep", "right", "--episodes", "4", "--out", str(directory / "e")]
-    assert main([*evaluate, *common]) == 0
+    for command in sweep_commands(directory):
+        assert main([*command, "--seed", "3", "--json"]) == 0
 
 
 # ---------------------------------------------------------------------------- tests
@@ -245,6 +241,69 @@ def test_local_config_splits_envs_and_seeds_per_rank() -> None:
     assert parts[0].run.seed == config.run.seed and len({p.run.seed for p in parts}) == 4
     with pytest.raises(AmorError, match="num_envs = 32 is not divisible by the 3 processes"):
         distributed.local_config(config, distributed.World(0, 3))
+
+
+SEEDS, SUB = np.array([5, 6, 7, 8, 9, 10]), [4, 1, 5]  # per-env seeds; a smaller batch's envs
+
+
+def step_both(big, small, steps: int, scale: float) -> int:
+    """Step a batch of 6 and one of 3 (the big one's envs SUB, seeded alike) with the same
+    actions; every output of the shared envs must be bit-identical. Returns the episodes ended."""
+    ob, _ = big.reset(seed=SEEDS)
+    os_, _ = small.reset(seed=SEEDS[SUB])
+    np.testing.assert_array_equal(ob[SUB], os_)
+    rng, ended = np.random.default_rng(0), 0
+    for _ in range(steps):
+        a = scale * rng.normal(size=(6, big.action_dim))
+        one, two = big.step(a), small.step(a[SUB])
+        for x, y in zip(one[:4], two[:4], strict=True):  # obs, rewards, terminated, truncated
+            np.testing.assert_array_equal(np.asarray(x)[SUB], y)
+        ended += int((one[2] | one[3])[SUB].sum())
+    return ended
+
+
+def test_per_env_seeds_make_every_toy_env_independent_of_its_batch() -> None:
+    """``reset(seed=[s_0, ...])``: env i draws from its own generator, so the same seed gives the
+    same episodes (hazards, noise, resets, weights) in any batch, at any position; a snapshot
+    keeps the per-env generators; one int seed still draws from one generator."""
+    from amorctl.core.env_random import BatchRandom
+    from amorctl.envs.toy import ToySmoothEnv, ToyTradeoffEnv
+
+    for make in (
+        lambda n: ToyTradeoffEnv(n, max_steps=7, hazard=0.2),
+        lambda n: ToySmoothEnv(n, max_steps=5),
+    ):
+        big, small = make(6), make(3)
+        assert step_both(big, small, 30, 1.0) >= 12  # several episodes each, resets included
+        state, a = small.get_state(), np.ones((3, 1))
+        first = small.step(a)
+        small.set_state(state)
+        np.testing.assert_array_equal(small.step(a)[0], first[0])
+        small.reset(seed=4)
+        assert isinstance(small.rand, BatchRandom)
+    ob, _ = ToyTradeoffEnv(3).reset(seed=SEEDS[:3])
+    assert not np.array_equal(ob, ToyTradeoffEnv(3).reset(seed=5)[0])
+    with pytest.raises(AmorError, match="expected 3 seeds"):
+        ToyTradeoffEnv(3).reset(seed=SEEDS)
+
+
+def test_per_env_seeds_make_every_tracking_env_independent_of_its_batch() -> None:
+    """The torch-cpu tracking env: RSI (random clip and frame) and the clip switches of short
+    clips come from each env's generator; MuJoCo steps every env on its own, so the shared envs'
+    observations, rewards and terminations are bit-identical in a batch of 6 and one of 3."""
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.envs.tracking_env import TrackingEnv
+    from amorctl.registry import get_registry
+
+    ch = get_registry().character("biped20")
+    lib = synthetic_library(ch, num_clips=3, seconds=0.3, seed=3)  # 15-frame clips: switches
+    big, small = (TrackingEnv(ch, lib, num_envs=n, max_episode_steps=12, nthread=1) for n in (6, 3))
+    assert step_both(big, small, 26, 0.05) >= 6
+    assert (big.tracking_view().clip_index()[SUB] == small.tracking_view().clip_index()).all()
+    big.reset(seed=SEEDS)
+    start = big.tracking_view().reference_index()
+    big.reset(seed=SEEDS[::-1])
+    assert not np.array_equal(start, big.tracking_view().reference_index())  # the seeds matter
 
 
 def test_rank_rows_cover_every_row_once_in_order() -> None:
@@ -331,68 +390,77 @@ def test_two_rank_run_is_replicated_and_resumes_to_the_same_metrics(tmp_path: Pa
     assert distributed.WORLD_KEY not in single.trainer.meta and single.trainer.arrays["obs"].shape == (32, 5)
 
 
-def test_two_rank_sweeps_gather_the_rank_blocks_into_the_one_process_layout(
-    tmp_path: Path, toy_run: Path
+def json_docs(text: str) -> list[dict]:
+    """The JSON documents printed one after another (``--json`` of several commands)."""
+    decoder, docs, text = json.JSONDecoder(), [], text.strip()
+    while text:
+        doc, end = decoder.raw_decode(text)
+        docs.append(doc)
+        text = text[end:].strip()
+    return docs
+
+
+def assert_same_numbers(a: object, b: object, where: str = "") -> None:
+    """``a`` and ``b`` (JSON) have the same structure, flags and strings, and numbers within 1e-6
+    (absolute, or relative above 1)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for key in a:
+            assert_same_numbers(a[key], b[key], f"{where}/{key}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            assert_same_numbers(x, y, f"{where}[{i}]")
+    elif isinstance(a, float) and not isinstance(b, bool):
+        assert isinstance(b, (int, float)) and abs(a - b) <= 1e-6 * max(1.0, abs(a)), (where, a, b)
+    else:
+        assert a == b, (where, a, b)
+
+
+def test_two_rank_sweeps_equal_the_one_process_sweeps(
+    tmp_path: Path, toy_run: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    from amorctl.analysis.eval_env import sweep_weights
-    from amorctl.analysis.front import summarize_front
-    from amorctl.analysis.sweeps import pareto_sweep, weight_sweep
-    from amorctl.train.rundir import RunDir
+    """``amorctl pareto`` and ``evaluate --sweep`` on 2 ranks (uneven blocks: 8 + 7 weight
+    vectors, 3 + 2 episodes per level) give the 1-process command's front and returns: every
+    episode is seeded by (seed, its sample / episode index), never by its batch position."""
+    from amorctl.cli.main import main
 
     torch.set_num_threads(1)
     (tmp_path / "run").symlink_to(toy_run)  # trained: its actions follow w
     procs = launch("pareto", tmp_path)
-    run = RunDir.open(tmp_path / "run")
-    policy, config = run.policy(), run.config
-    weights, _ = sweep_weights(2, SWEEP_K, seed=3)
-    seeds = [distributed.rank_seed(3, r) for r in range(2)]
-    halves = [pareto_sweep(policy, config, weights[s], episodes=SWEEP_E, seed=seed)
-              for s, seed in zip((slice(0, 8), slice(8, 16)), seeds, strict=True)]  # fmt: skip
-    full = pareto_sweep(policy, config, weights, episodes=SWEEP_E, seed=3)
-    levels = [weight_sweep(policy, config, "right", episodes=2, seed=seed) for seed in seeds]
+    one = tmp_path / "one"
+    one.mkdir()
+    (one / "run").symlink_to(toy_run)
+    capsys.readouterr()
+    assert main([*sweep_commands(one)[0], "--seed", "3", "--json"]) == 0  # meanwhile: 1 process
+    assert main([*sweep_commands(one)[1], "--seed", "3", "--json"]) == 0
+    pareto_one, evaluate_one = json_docs(capsys.readouterr().out)
     assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
     assert not (tmp_path / "rank1.out").read_text()  # rank 1 printed and wrote nothing
-    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == ["e", "p", "run"]
-    stdout, decoder, docs = (tmp_path / "rank0.out").read_text(), json.JSONDecoder(), []
-    while stdout.strip():
-        doc, end = decoder.raw_decode(stdout.strip())
-        docs.append(doc)
-        stdout = stdout.strip()[end:]
-    pareto_doc, evaluate_doc = docs
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == ["e", "one", "p", "run"]
+    pareto_doc, evaluate_doc = json_docs((tmp_path / "rank0.out").read_text())
     assert json.loads((tmp_path / "p/pareto.json").read_text())["motions"] == pareto_doc["motions"]
+    assert pareto_doc["weights"] == pareto_one["weights"] and len(pareto_doc["weights"]) == SWEEP_K
+    # the same front: every row's returns, spreads, survival, the equal-weights point, the
+    # non-dominated flags, hypervolume, expected utility and sparsity
+    assert_same_numbers(pareto_doc["motions"], pareto_one["motions"], "pareto")
     (front,) = pareto_doc["motions"]
-    points = np.concatenate([h.groups[0].points for h in halves])
-    np.testing.assert_array_equal(np.array(front["points"]), points)  # each rank's block, in row order
-    np.testing.assert_array_equal(np.array(pareto_doc["weights"]), weights)
-    assert front["equal_weights_point"] == halves[0].groups[0].equal_point.tolist()
-    summary = summarize_front(points, weights, None, seed=3)
-    assert front["non_dominated"] == summary.non_dominated.tolist()
-    assert front["hypervolume"]["value"] == summary.hypervolume.value
-    assert pareto_doc["timing"]["num_envs"] == sum(h.num_envs for h in halves)
-    csv_rows = list(csv.DictReader(io.StringIO((tmp_path / "p/pareto.csv").read_text())))
-    assert [r["sample"] for r in csv_rows] == [str(k) for k in range(SWEEP_K)] + ["equal"]
+    assert any(front["non_dominated"]) and not all(front["non_dominated"])  # a real front
+    assert pareto_doc["timing"]["num_envs"] == pareto_one["timing"]["num_envs"] + SWEEP_E  # + rank 1's 1/m
+    two_csv = list(csv.DictReader((tmp_path / "p/pareto.csv").open()))
+    one_csv = list(csv.DictReader((one / "p/pareto.csv").open()))
+    assert [r["sample"] for r in two_csv] == [str(k) for k in range(SWEEP_K)] + ["equal"]
+    assert [r.keys() for r in two_csv] == [r.keys() for r in one_csv]
     assert (tmp_path / "p/pareto.png").stat().st_size > 0
-    # the same front as the 1-process sweep up to the episodes' random starts: each weight's
-    # returns agree (rows correlate), and so does the hypervolume
-    one = full.groups[0]
-    for i in range(2):
-        assert np.corrcoef(points[:, i], one.points[:, i])[0, 1] > 0.8
-
-    def hypervolume(pts: np.ndarray) -> float:
-        return summarize_front(pts, weights, [0.0, 0.0]).hypervolume.value
-
-    ones = [hypervolume(one.points)] + [
-        hypervolume(pareto_sweep(policy, config, weights, episodes=SWEEP_E, seed=s).groups[0].points)
-        for s in (4, 5, 6)
-    ]  # the seed-to-seed spread of the 1-process front
-    assert abs(hypervolume(points) - np.mean(ones)) < 3 * np.std(ones), (hypervolume(points), ones)
-    # the weight sweep: 2 episodes per level from each rank, side by side; rank 0 also evaluated
-    sweep = evaluate_doc["sweep"]
+    # the weight sweep: each level's episodes 0-2 from rank 0, 3-4 from rank 1, as one process ran them
+    sweep, sweep_one = evaluate_doc["sweep"], evaluate_one["sweep"]
     assert evaluate_doc["settings"] and Path(sweep["figure"]).is_file()
-    np.testing.assert_array_equal(
-        np.array(sweep["returns"]), np.concatenate([ws.returns for ws in levels], axis=1)
+    assert np.array(sweep["returns"]).shape == (5, SWEEP_LEVEL_E)
+    assert_same_numbers(
+        {k: v for k, v in sweep.items() if k != "figure"},
+        {k: v for k, v in sweep_one.items() if k != "figure"},
+        "sweep",
     )
-    assert sweep["levels"] == levels[0].levels.tolist() and np.isfinite(sweep["spearman_rho"])
 
 
 def _long_run(tmp_path: Path) -> None:

@@ -329,16 +329,21 @@ def test_pd_batch_matches_per_env_mjdata() -> None:
 def test_servo_batch_applies_delayed_servo_torque_every_substep() -> None:
     ch = _character("biped20")
     from amorctl.sim.actuators import servo_torque
+    from amorctl.sim.batch_sim import build_model
 
     env, lib = _make(ch, num_envs=3, seed=0)
     env.reset(seed=0)
     sim = env.sim
-    m, k = sim.model, ch.actuator.latency_steps
+    # The env's servo runs inside MuJoCo (dcmotor + history delay); the reference is the numpy
+    # servo on the motor model. Euler makes both apply actuator forces explicitly: equal to
+    # rounding (under implicitfast they differ by the implicit back-EMF, tests/test_actuators.py).
+    m, k = build_model(ch, "python"), ch.actuator.latency_steps
+    m.opt.integrator = sim.model.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
     assert k > 0
     datas, pending = [], []
     for i in range(3):
         d = mujoco.MjData(m)
-        mujoco.mj_setState(m, d, sim.state[i], STATE_SPEC)
+        d.time, d.qpos[:], d.qvel[:] = sim.state[i, 0], sim.qpos[i], sim.qvel[i]
         datas.append(d)
         pending.append([sim.joint_pos()[i].copy()] * k)  # delayed commands start at the pose
     for _ in range(6):

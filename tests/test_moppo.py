@@ -135,3 +135,131 @@ def test_moppo_iterates_on_the_tracking_env() -> None:
     assert all(np.isfinite(metrics[f"reward/{n}"]) for n in names)
     assert np.isfinite(metrics["loss/total"]) and metrics["episodes"] >= 8  # 25 steps > 20-step limit
     assert metrics["env_steps"] == 8 * 25
+
+
+# --- the levers (docs/moppo.md, Levers) ----------------------------------------------------------
+def test_return_scale_tracks_per_objective_moments() -> None:
+    from amorctl.plugins.backends.torch_cpu.return_scale import RATE, ReturnScale
+
+    gen = torch.Generator().manual_seed(0)
+    scale = ReturnScale(2, advantage=True)
+    batches = [
+        (torch.randn(4000, 2, generator=gen) * torch.tensor([50.0, 2.0]) + torch.tensor([100.0, -20.0]),
+         torch.randn(4000, 2, generator=gen) * torch.tensor([5.0, 0.5]))
+        for _ in range(3)
+    ]  # fmt: skip
+    for r, a in batches:
+        scale.update(r, a)
+    # first batch initializes, later ones move by RATE: the same recursion by hand, in float64
+    mean, sq, adv_sq = (batches[0][0].double().mean(0), (batches[0][0].double() ** 2).mean(0),
+                        (batches[0][1].double() ** 2).mean(0))  # fmt: skip
+    for r, a in batches[1:]:
+        r, a = r.double(), a.double()
+        mean, sq, adv_sq = (x + RATE * (y - x) for x, y in ((mean, r.mean(0)), (sq, (r * r).mean(0)),
+                                                              (adv_sq, (a * a).mean(0))))  # fmt: skip
+    torch.testing.assert_close(scale.return_std(), torch.sqrt(sq - mean**2).float())
+    torch.testing.assert_close(scale.advantage_std(), torch.sqrt(adv_sq).float())
+    assert scale.return_std().tolist() == pytest.approx([50.0, 2.0], rel=0.05)
+    assert scale.advantage_std().tolist() == pytest.approx([5.0, 0.5], rel=0.05)
+
+
+def test_value_return_norm_divides_each_objectives_value_error_by_its_std() -> None:
+    trainer = make_trainer(tiny_config(ppo__return_norm="value", ppo__clip_value_loss=False))
+    batch, _ = trainer.collect_rollout()
+    trainer.compute_returns(batch)  # folds this batch into the scale first
+    assert trainer.return_scale is not None and trainer.return_scale.updates == 1
+    sigma = batch.returns.double().std(0, correction=0).float()
+    torch.testing.assert_close(trainer.return_scale.return_std(), sigma)
+    idx = torch.arange(batch.obs.shape[0])
+    with torch.no_grad():
+        _, stats = trainer.minibatch_loss(batch, idx)
+        _, values = trainer._forward(batch.obs)
+    expected = 0.5 * (((values - batch.returns) / sigma) ** 2).mean()
+    assert float(stats["loss/value"]) == pytest.approx(float(expected), rel=1e-5)
+    metrics = trainer.iteration()
+    assert metrics["return_scale/return_std/left"] > 0 and "return_scale/advantage_std/right" in metrics
+
+
+def test_advantage_return_norm_equalizes_the_objectives_in_the_scalarized_advantage() -> None:
+    off = make_trainer(tiny_config())
+    on = make_trainer(tiny_config(ppo__return_norm="value+advantage"))
+    batch, _ = off.collect_rollout()
+    off.compute_returns(batch)
+    batch.advantages = batch.advantages * torch.tensor([100.0, 1.0])  # objective 0 drowns objective 1
+    batch.weights = torch.full_like(batch.weights, 0.5)
+    on._update_return_scale(batch.returns, batch.advantages)
+    rms = torch.sqrt((batch.advantages.double() ** 2).mean(0)).float()
+    torch.testing.assert_close(on.return_scale.advantage_std(), rms)
+    idx = torch.arange(batch.obs.shape[0])
+    a0, a1 = batch.advantages[:, 0], batch.advantages[:, 1]
+
+    def corr(x: torch.Tensor, y: torch.Tensor) -> float:
+        return float(torch.corrcoef(torch.stack([x, y]))[0, 1])
+
+    # without scaling the policy sees objective 0 only; with it both objectives count alike
+    assert corr(off.scalarized_advantage(batch, idx), a0) > 0.99
+    scaled = on.scalarized_advantage(batch, idx)
+    assert abs(corr(scaled, a0 / rms[0]) - corr(scaled, a1 / rms[1])) < 0.2 * abs(corr(scaled, a1))
+    expected = a0 / rms[0] * 0.5 + a1 / rms[1] * 0.5
+    torch.testing.assert_close(scaled, (expected - expected.mean()) / (expected.std(correction=0) + 1e-8))
+
+
+def test_tracking_run_with_every_lever_resumes_bit_exactly(tmp_path) -> None:
+    import csv
+
+    from amorctl.core.config import merge
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.motion.dataset import write_dataset
+    from amorctl.registry import get_registry
+    from amorctl.train.checkpoint import list_checkpoints, load_checkpoint
+    from amorctl.train.loop import train_run
+
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=0.3, seed=3)
+    write_dataset(tmp_path / "ds.mcap", lib)
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 3, "checkpoint_every": 10, "tensorboard": False, "threads": 1},
+            "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
+                    "num_envs": 4, "episode_seconds": 0.06},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "return_norm": "value+advantage"},
+            "weights": {"alpha": 0.5, "corner_fraction": 0.2, "edge_fraction": 0.1, "axis_fraction": 0.2,
+                        "adaptive_fraction": 0.3},
+        },
+        "levers test",
+    )  # fmt: skip
+    full = train_run(config, tmp_path / "full")
+    assert train_run(config, tmp_path / "part", stop_after=1).interrupted
+    ckpt = load_checkpoint(list_checkpoints(tmp_path / "part" / "checkpoints")[-1][1])
+    assert ckpt.env is not None and sum(ckpt.env.meta["weight_sampler"]["count"]) > 0  # episodes fed back
+    assert "return_scale.ret_mean" in ckpt.trainer.arrays and "feedback.start_value" in ckpt.trainer.arrays
+    resumed = train_run(config, tmp_path / "part", resume=True)
+    assert (full.end_iteration, resumed.start_iteration, resumed.end_iteration) == (3, 1, 3)
+
+    def rows(out):
+        with (out / "metrics.csv").open(newline="", encoding="utf-8") as f:
+            return list(csv.DictReader(f))
+
+    a, b = rows(tmp_path / "full"), rows(tmp_path / "part")
+    keys = [k for k in a[-1] if k.startswith(("loss/", "return", "weights/", "explained_variance/"))]
+    assert "weights/anchor_entropy" in keys and "return_scale/return_std/smooth" in keys
+    for ra, rb in zip(a, b, strict=True):
+        for key in keys:
+            assert ra[key] == rb[key], (ra["iteration"], key)
+    end_a = load_checkpoint(list_checkpoints(tmp_path / "full" / "checkpoints")[-1][1])
+    end_b = load_checkpoint(list_checkpoints(tmp_path / "part" / "checkpoints")[-1][1])
+    assert end_a.env.meta["weight_sampler"] == end_b.env.meta["weight_sampler"]
+    for key, value in end_a.trainer.arrays.items():
+        np.testing.assert_array_equal(value, end_b.trainer.arrays[key], err_msg=key)
+
+
+def test_levers_are_refused_where_they_are_not_implemented() -> None:
+    from amorctl.core.errors import AmorError
+
+    with pytest.raises(AmorError, match=r"\[weights\] options .* need run.backend = 'torch-cpu' and env"):
+        tiny_config(weights__corner_fraction=0.1)  # the toy env draws its own w
+    with pytest.raises(AmorError, match=r"\[ppo\] return_norm = 'value' needs run.backend = 'torch-cpu'"):
+        tiny_config(run__backend="jax-mjx", ppo__return_norm="value")
+    with pytest.raises(AmorError, match="exceed 1"):
+        tiny_config(env__kind="tracking", weights__corner_fraction=0.6, weights__axis_fraction=0.6)

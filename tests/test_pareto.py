@@ -225,3 +225,113 @@ def test_expected_utility_over_sampled_weights_prefers_larger_front() -> None:
     small = np.array([[1.0, 0.0], [0.0, 1.0]])
     larger = np.vstack([small, [0.7, 0.7]])
     assert expected_utility(larger, w) > expected_utility(small, w)
+
+
+# ---------------------------------------------------------------- survivors' front (issue 13)
+
+
+def test_survivor_means_skip_fallen_episodes() -> None:
+    from amorctl.analysis.front import survivor_means
+
+    returns = np.array([[[10.0, 1.0], [2.0, 0.0]], [[1.0, 1.0], [3.0, 3.0]]])  # [K=2, E=2, m=2]
+    survived = np.array([[1, 0], [0, 0]])
+    got = survivor_means(returns, survived)
+    np.testing.assert_array_equal(got[0], [10.0, 1.0])  # the fallen episode (2, 0) is left out
+    assert np.isnan(got[1]).all()  # every episode fell
+
+
+def test_summarize_fronts_shares_the_reference_and_drops_the_fallen() -> None:
+    from amorctl.analysis.front import shared_reference_point, summarize_fronts
+
+    # two survivors on a trade-off, one fallen point low in both objectives
+    points = np.array([[10.0, 1.0], [1.0, 10.0], [0.5, 0.5]])
+    surv = np.array([[10.0, 1.0], [1.0, 10.0], [np.nan, np.nan]])
+    w = np.array([[0.9, 0.1], [0.1, 0.9], [0.5, 0.5]])
+    summary, survivors = summarize_fronts(points, surv, w)
+    ref = shared_reference_point(points, surv)
+    np.testing.assert_allclose(ref, [0.5 - 0.95, 0.5 - 0.95])  # min - 0.1 * range over all rows
+    np.testing.assert_allclose(summary.hypervolume.reference_point, ref)
+    np.testing.assert_allclose(survivors.summary.hypervolume.reference_point, ref)
+    np.testing.assert_array_equal(survivors.survived, [True, True, False])
+    np.testing.assert_array_equal(survivors.non_dominated, [True, True, False])
+    # the fallen point is dominated here, so both fronts hold the same two points: same volume
+    assert survivors.summary.hypervolume.value == pytest.approx(summary.hypervolume.value)
+    # hand value: union of [ref, (10, 1)] and [ref, (1, 10)] boxes
+    r = ref[0]
+    assert summary.hypervolume.value == pytest.approx(2 * (10 - r) * (1 - r) - (1 - r) ** 2)
+    # EUM of the survivors uses their own weights: rows 0 and 1
+    assert survivors.summary.expected_utility == pytest.approx(expected_utility(points[:2], w[:2]))
+
+
+def test_summarize_fronts_without_survivors() -> None:
+    from amorctl.analysis.front import summarize_fronts
+
+    points = np.array([[1.0, 2.0], [2.0, 1.0]])
+    summary, survivors = summarize_fronts(points, np.full((2, 2), np.nan), np.full((2, 2), 0.5))
+    assert survivors.summary is None and not survivors.survived.any()
+    assert summary.non_dominated_fraction == 1.0
+
+
+def _fake_sweep(fallen: int) -> object:
+    """A ParetoSweep of 3 objectives: 20 survivors near (100, 100, 100) and ``fallen`` points at 0."""
+    from amorctl.analysis.front import summarize_fronts
+    from amorctl.analysis.sweeps import ParetoGroup, ParetoSweep
+
+    rng = np.random.default_rng(0)
+    k = 20 + fallen
+    pts = 100 + rng.normal(size=(k, 3))
+    pts[20:] = 1.0 + rng.uniform(size=(fallen, 3))
+    surv = pts.copy()
+    surv[20:] = np.nan
+    w = sample_dirichlet(np.random.default_rng(1), k, 3)
+    summary, survivors = summarize_fronts(pts, surv, w)
+    grp = ParetoGroup("walk", pts, np.zeros_like(pts), (np.arange(k) < 20).astype(float), pts[:20].mean(0),
+                      summary, surv, survivors)  # fmt: skip
+    return ParetoSweep(("a", "b", "c"), w, "dirichlet(1)", 1, 10.0, [grp], k + 1, 100, 1.0, "rule")
+
+
+def test_pareto_figure_zooms_on_survivors(tmp_path, monkeypatch) -> None:
+    """The axes span the survivors (near 100), not the fallen points (near 1), which are counted."""
+    from amorctl.outputs import plots
+
+    captured = {}
+    real_save = plots._save
+
+    def keep(fig, paths):
+        captured["fig"] = fig
+        real_save(fig, paths)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    plots.pareto_figure(_fake_sweep(3), [tmp_path / "p.png"])
+    fig = captured["fig"]
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(visible) == 3  # m = 3: panels (a,b), (a,c), (b,c)
+    for ax in visible:
+        lo, hi = ax.get_xlim()
+        assert 90 < lo < hi < 110, (lo, hi)
+    assert "3 fell" in fig._suptitle.get_text()
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any("fell in every episode: 3 of 23" in t for t in labels)
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_pareto_json_reports_both_fronts(toy_run, tmp_path, capsys) -> None:
+    import json
+
+    import jsonschema
+
+    from amorctl.analysis.schemas import PARETO_JSON_SCHEMA
+    from amorctl.cli.main import main
+
+    code = main(["pareto", str(toy_run), "-k", "6", "--out", str(tmp_path), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out)
+    jsonschema.validate(doc, PARETO_JSON_SCHEMA)
+    grp = doc["motions"][0]
+    sv = grp["survivors"]
+    assert sv["count"] + sv["fallen"] == 6
+    assert sv["count"] == sum(1 for s in grp["survival"] if s > 0)
+    assert sv["hypervolume"]["reference_point"] == grp["hypervolume"]["reference_point"]
+    header = (tmp_path / "pareto.csv").read_text().splitlines()[0].split(",")
+    assert "non_dominated_survivors" in header and "J_right_survivors" in header

@@ -117,6 +117,34 @@ def sweep_weights(
     return w / w.sum(axis=1, keepdims=True), "dirichlet(1)"
 
 
+def episode_seeds(seed: int, keys: np.ndarray) -> np.ndarray:
+    """One env seed per episode from ``seed`` and the episode's key alone (never its batch position).
+
+    A sweep names each episode by a key (``(motion group, weight sample, episode)`` for a Pareto
+    sweep, ``(level, episode)`` for a weight sweep) and resets its env with these seeds, so every
+    env draws its start state and randomness from its own generator
+    (:mod:`amorctl.core.env_random`): an episode is the same whether the batch holds all K
+    samples or a block of them (``torchrun`` ranks, docs/distributed.md).
+
+    Args:
+        seed: the sweep's ``--seed`` (>= 0).
+        keys: [N, k] non-negative ints, one row per env.
+
+    Returns:
+        [N] int64 seeds in [0, 2**63): ``SeedSequence(seed, spawn_key=key)``'s first 63 bits.
+    """
+    rows = np.asarray(keys, dtype=np.int64)
+    if seed < 0:
+        raise AmorError(f"--seed must be >= 0, got {seed}")
+    if rows.ndim != 2 or (rows < 0).any():
+        raise ValueError(f"episode keys must be [N, k] non-negative ints, got shape {rows.shape}")
+    out = np.empty(len(rows), dtype=np.int64)
+    for i, key in enumerate(rows.tolist()):
+        state = np.random.SeedSequence(int(seed), spawn_key=tuple(key)).generate_state(1, np.uint64)
+        out[i] = int(state[0] >> np.uint64(1))
+    return out
+
+
 def episode_limit(env: Any) -> int:
     """The env's time limit in control steps (0 when it has none)."""
     view = tracking_view(env)

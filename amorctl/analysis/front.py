@@ -375,3 +375,89 @@ def summarize_front(
         expected_utility=expected_utility(pts, weights),
         sparsity=sparsity(non_dominated(pts, keep_duplicates=False)),
     )
+
+
+@dataclass(frozen=True)
+class SurvivorFront:
+    """The front of the weight vectors whose episodes survived (reached the time limit).
+
+    A fall ends the episode early and folds every objective's return into one low number, so the
+    fallen points sit in a corner of every panel and stretch the front. This is the front of the
+    others, each point the mean over its surviving episodes only (docs/pareto.md).
+
+    Attributes:
+        survived: [K] bool, at least one of the weight vector's episodes survived.
+        non_dominated: [K] bool, non-dominated among the survivors (False for fallen rows).
+        summary: the metrics over the survivors' rows (None when no weight vector survived);
+            its masks index the survivors in order (``np.flatnonzero(survived)``).
+    """
+
+    survived: np.ndarray
+    non_dominated: np.ndarray
+    summary: FrontSummary | None
+
+
+def survivor_means(returns: np.ndarray, survived: np.ndarray) -> np.ndarray:
+    """[K, m] mean return over each weight vector's surviving episodes (NaN rows where all fell).
+
+    Args:
+        returns: [K, E, m] per-episode returns.
+        survived: [K, E] 1 where the episode reached the time limit, else 0.
+    """
+    alive = np.asarray(survived) > 0.5  # [K, E]
+    count = alive.sum(axis=1)  # [K]
+    total = np.where(alive[..., None], returns, 0.0).sum(axis=1)  # [K, m]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count[:, None] > 0, total / np.maximum(count, 1)[:, None], np.nan)
+
+
+def shared_reference_point(points: np.ndarray, survivor_points: np.ndarray) -> np.ndarray:
+    """One reference point for the front of all episodes and the survivors' front: the default rule
+    (:func:`default_reference_point`) over the rows of both (NaN rows of fallen vectors skipped).
+
+    Args:
+        points: [K, m] mean returns over all episodes.
+        survivor_points: [K, m] mean returns over surviving episodes (NaN rows where none survived).
+
+    Returns:
+        [m] float64.
+    """
+    rows = np.vstack([_as_points(points), np.asarray(survivor_points, dtype=np.float64)])
+    return default_reference_point(rows[np.all(np.isfinite(rows), axis=1)])
+
+
+def summarize_fronts(
+    points: np.ndarray,
+    survivor_points: np.ndarray,
+    weights: np.ndarray,
+    reference_point: np.ndarray | Sequence[float] | None = None,
+    *,
+    hv_method: HypervolumeMethod = "auto",
+    seed: int | np.random.Generator | None = 0,
+) -> tuple[FrontSummary, SurvivorFront]:
+    """:func:`summarize_front` of all points and of the survivors, at ONE reference point.
+
+    Args:
+        points: [K, m] mean returns over all episodes of each weight vector.
+        survivor_points: [K, m] mean returns over the surviving episodes (NaN rows: none survived).
+        weights: [K, m] the weight vectors (the survivors' EUM uses their own rows).
+        reference_point: [m], or None for :func:`shared_reference_point`.
+        hv_method, seed: passed to :func:`hypervolume`.
+
+    Returns:
+        (summary of all points, :class:`SurvivorFront`).
+    """
+    pts = _as_points(points)
+    surv = np.asarray(survivor_points, dtype=np.float64)
+    if surv.shape != pts.shape:
+        raise AmorError(f"survivor points have shape {surv.shape}, points {pts.shape}")
+    ref = shared_reference_point(pts, surv) if reference_point is None else reference_point
+    summary = summarize_front(pts, weights, ref, hv_method=hv_method, seed=seed)
+    alive = np.all(np.isfinite(surv), axis=1)
+    nd = np.zeros(len(pts), dtype=bool)
+    if not alive.any():
+        return summary, SurvivorFront(alive, nd, None)
+    w = np.asarray(weights, dtype=np.float64)
+    sub = summarize_front(surv[alive], w[alive], ref, hv_method=hv_method, seed=seed)
+    nd[alive] = sub.non_dominated
+    return summary, SurvivorFront(alive, nd, sub)

@@ -174,7 +174,7 @@ def rollout(
     weights: WeightsSource,
     *,
     episodes: int = 1,
-    seed: int | None = 0,
+    seed: int | Sequence[int] | np.ndarray | None = 0,
     max_steps: int | None = None,
     record_steps: bool = True,
     record_qpos: bool = False,
@@ -192,7 +192,8 @@ def rollout(
             (t: seconds since each env's episode began), or a :class:`Schedule` (evaluated per
             env at its episode time and, for tracking envs, for its current motion).
         episodes: complete episodes per env (>= 1).
-        seed: passed to ``env.reset``.
+        seed: passed to ``env.reset``: one int for the batch, or [N] ints, one per env
+            (each env's episodes then independent of the batch layout).
         max_steps: safety cap on control steps (default: ``episodes`` times the env's time limit
             plus one, or 100 000 when the env has none); episodes unfinished then are dropped.
         record_steps: keep the per-step arrays (memory T * N * ...); per-episode results are

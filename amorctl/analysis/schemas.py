@@ -1,4 +1,4 @@
-"""JSON Schemas (draft 2020-12) of ``amorctl pareto --json`` and ``amorctl evaluate --json``.
+"""JSON Schemas (draft 2020-12) of ``amorctl pareto --json`` (and ``--coverage``) and ``evaluate --json``.
 
 The same schemas are printed in docs/pareto.md and docs/evaluate.md (a test checks they agree)
 and the test suite validates real command output against them with ``jsonschema``.
@@ -14,6 +14,24 @@ _NUM_OR_NULL: dict[str, Any] = {"type": ["number", "null"]}
 _MATRIX: dict[str, Any] = {"type": "array", "items": {"type": "array", "items": _NUM_OR_NULL}}
 _VECTOR: dict[str, Any] = {"type": "array", "items": _NUM_OR_NULL}
 _BOOLS: dict[str, Any] = {"type": "array", "items": {"type": "boolean"}}
+_FRACTION_OR_NULL: dict[str, Any] = {"type": ["number", "null"], "minimum": 0, "maximum": 1}
+
+_HYPERVOLUME: dict[str, Any] = {
+    "type": "object",
+    "required": [
+        "value", "method", "ci_low", "ci_high", "confidence", "n_samples", "n_points", "reference_point",
+    ],
+    "properties": {
+        "value": {"type": "number", "minimum": 0},
+        "method": {"enum": ["exact", "monte_carlo"]},
+        "ci_low": {"type": "number"},
+        "ci_high": {"type": "number"},
+        "confidence": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
+        "n_samples": {"type": "integer", "minimum": 0},
+        "n_points": {"type": "integer", "minimum": 0},
+        "reference_point": {"type": "array", "items": {"type": "number"}},
+    },
+}  # fmt: skip
 
 PARETO_JSON_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -41,7 +59,7 @@ PARETO_JSON_SCHEMA: dict[str, Any] = {
                 "required": [
                     "motion", "points", "points_std", "survival", "equal_weights_point", "non_dominated",
                     "pairwise_non_dominated", "non_dominated_fraction", "hypervolume", "expected_utility",
-                    "sparsity",
+                    "sparsity", "survivors",
                 ],
                 "properties": {
                     "motion": {"type": "string", "description": "clip name, or 'all'"},
@@ -56,25 +74,28 @@ PARETO_JSON_SCHEMA: dict[str, Any] = {
                         "additionalProperties": _BOOLS,
                     },
                     "non_dominated_fraction": {"type": "number", "minimum": 0, "maximum": 1},
-                    "hypervolume": {
-                        "type": "object",
-                        "required": [
-                            "value", "method", "ci_low", "ci_high", "confidence", "n_samples", "n_points",
-                            "reference_point",
-                        ],
-                        "properties": {
-                            "value": {"type": "number", "minimum": 0},
-                            "method": {"enum": ["exact", "monte_carlo"]},
-                            "ci_low": {"type": "number"},
-                            "ci_high": {"type": "number"},
-                            "confidence": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
-                            "n_samples": {"type": "integer", "minimum": 0},
-                            "n_points": {"type": "integer", "minimum": 0},
-                            "reference_point": {"type": "array", "items": {"type": "number"}},
-                        },
-                    },
+                    "hypervolume": _HYPERVOLUME,
                     "expected_utility": {"type": "number"},
                     "sparsity": {"type": "number", "minimum": 0},
+                    "survivors": {
+                        "type": "object",
+                        "description": "the front of the weight vectors with a surviving episode, each "
+                        "point the mean over its surviving episodes; same reference point (null: none)",
+                        "required": [
+                            "count", "fallen", "points", "non_dominated", "non_dominated_fraction",
+                            "hypervolume", "expected_utility", "sparsity",
+                        ],
+                        "properties": {
+                            "count": {"type": "integer", "minimum": 0},
+                            "fallen": {"type": "integer", "minimum": 0, "description": "all episodes fell"},
+                            "points": {**_MATRIX, "description": "[K][m], rows of null where all fell"},
+                            "non_dominated": {**_BOOLS, "description": "[K] among survivors"},
+                            "non_dominated_fraction": {**_FRACTION_OR_NULL},
+                            "hypervolume": {"oneOf": [{"type": "null"}, _HYPERVOLUME]},
+                            "expected_utility": _NUM_OR_NULL,
+                            "sparsity": {"type": ["number", "null"], "minimum": 0},
+                        },
+                    },
                 },
             },
         },
@@ -176,5 +197,77 @@ EVALUATE_JSON_SCHEMA: dict[str, Any] = {
                 },
             ]
         },
+    },
+}  # fmt: skip
+
+COVERAGE_JSON_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "$id": "https://amorctl.invalid/schemas/coverage.json",
+    "title": "amorctl pareto --coverage --json (also coverage.json)",
+    "type": "object",
+    "required": [
+        "run", "objectives", "gamma", "samples", "episode_seconds", "regions", "training_logged", "overall",
+        "per_sample", "timing", "files",
+    ],
+    "properties": {
+        "run": {"type": "string"},
+        "objectives": {"type": "array", "items": {"type": "string"}, "minItems": 1},
+        "gamma": {"type": "number", "description": "the run's discount, applied to the achieved return"},
+        "samples": {"type": "integer", "minimum": 1, "description": "K weight vectors, one episode each"},
+        "episode_seconds": {"type": "number"},
+        "regions": {
+            "type": "array",
+            "description": "4 m regions: dominant objective x bin of its weight",
+            "items": {
+                "type": "object",
+                "required": [
+                    "region", "objective", "bin", "feasible", "samples", "predicted", "achieved", "gap",
+                    "relative_gap", "survival", "training_episodes", "training_share",
+                ],
+                "properties": {
+                    "region": {"type": "string", "description": "<objective>:<lo>-<hi>"},
+                    "objective": {"type": "string"},
+                    "bin": {"type": "string"},
+                    "feasible": {"type": "boolean", "description": "false: the bin lies below 1/m"},
+                    "samples": {"type": "integer", "minimum": 0},
+                    "predicted": {**_NUM_OR_NULL, "description": "mean w . V(s_0)"},
+                    "achieved": {**_NUM_OR_NULL, "description": "mean discounted scalarized return"},
+                    "gap": {**_NUM_OR_NULL, "description": "achieved - predicted"},
+                    "relative_gap": {**_NUM_OR_NULL, "description": "gap / |predicted|"},
+                    "survival": _FRACTION_OR_NULL,
+                    "training_episodes": {"type": ["integer", "null"], "minimum": 0},
+                    "training_share": _FRACTION_OR_NULL,
+                },
+            },
+        },
+        "training_logged": {"type": "boolean", "description": "metrics.csv has the wcount/ columns"},
+        "overall": {
+            "type": "object",
+            "required": [
+                "predicted_mean", "achieved_mean", "mean_gap", "mean_abs_gap", "correlation", "survival",
+            ],
+            "additionalProperties": _NUM_OR_NULL,
+        },
+        "per_sample": {
+            "type": "object",
+            "required": ["weights", "region", "predicted", "achieved", "achieved_undiscounted", "survived"],
+            "properties": {
+                "weights": _MATRIX,
+                "region": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+                "predicted": _VECTOR,
+                "achieved": _VECTOR,
+                "achieved_undiscounted": _VECTOR,
+                "survived": _BOOLS,
+            },
+        },
+        "timing": {
+            "type": "object",
+            "required": ["env_steps", "seconds"],
+            "properties": {
+                "env_steps": {"type": "integer", "minimum": 0},
+                "seconds": {"type": "number", "minimum": 0},
+            },
+        },
+        "files": {"type": "object", "additionalProperties": {"type": "string"}},
     },
 }  # fmt: skip

@@ -2,18 +2,19 @@
 
 ``amorctl pareto`` and ``amorctl evaluate --sweep`` under torchrun call these instead of
 :func:`~amorctl.analysis.sweeps.pareto_sweep` / :func:`~amorctl.analysis.sweeps.weight_sweep`.
-Each rank evaluates its share in its own batched rollout, seeded with its rank seed (rank 0 keeps
-``seed``, :func:`amorctl.train.distributed.rank_seed`), and rank 0 puts the per-row results back
-in the 1-process order and computes the summaries over all of them, so it writes the same files
-with the same layout as a 1-process sweep. Without a process group they are the plain sweeps.
+Each rank evaluates its share in its own batched rollout with the sweep's ``seed`` and the global
+indices of its rows (every episode is seeded by ``seed`` and its own key, never its position in a
+batch: :func:`~amorctl.analysis.eval_env.episode_seeds`), and rank 0 puts the per-row results
+back in the 1-process order and computes the summaries over all of them, so it writes the same
+files, with the same rows, as a 1-process sweep. Without a process group they are the plain sweeps.
 
 - Pareto: the K weight vectors are cut into contiguous blocks (:func:`rank_rows`); every rank
   also evaluates the equal-weights vector, rank 0's is reported.
 - Weight sweep: the E episodes per level are cut into blocks; the returns ``[L, E]`` are
   concatenated along the episodes, the Spearman correlation is computed over all of them.
 
-Each block's episodes are the ones a 1-process sweep of that block with the rank's seed gives;
-they differ from the full 1-process sweep's episodes only in their random starts (docs/distributed.md).
+A rank's rows are therefore the 1-process sweep's rows (docs/distributed.md: bit-identical with
+the torch-cpu backend; what can differ in the last bits elsewhere).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.analysis.front import HypervolumeMethod, summarize_front
+from amorctl.analysis.front import HypervolumeMethod, summarize_fronts
 from amorctl.analysis.sweeps import (
     DEFAULT_SWEEP_LEVELS,
     ParetoGroup,
@@ -36,7 +37,7 @@ from amorctl.analysis.sweeps import (
 )
 from amorctl.core.config import TrainConfig
 from amorctl.core.errors import AmorError
-from amorctl.train.distributed import World, current, rank_rows, rank_seed
+from amorctl.train.distributed import World, current, rank_rows
 
 
 def pareto_sweep_ranks(
@@ -68,18 +69,33 @@ def pareto_sweep_ranks(
             raise AmorError(f"{world.size} processes need at least {world.size} weight vectors, got {len(w)}")
         if world.rank != 0:
             kwargs["on_step"] = None  # progress of rank 0's block only
-        part = pareto_sweep(
-            policy, config, w[rank_rows(len(w), world)], seed=rank_seed(seed, world.rank), **kwargs
-        )
-    rows = [(g.points, g.points_std, g.survival) for g in part.groups]
+        block = rank_rows(len(w), world)
+        ids = np.arange(len(w))[block]  # this block's global sample indices seed its episodes
+        part = pareto_sweep(policy, config, w[block], seed=seed, sample_ids=ids, **kwargs)
+    rows = [(g.points, g.points_std, g.survival, g.survivor_points) for g in part.groups]
     parts = world.gather((rows, part.num_envs, part.env_steps, part.seconds))
     if parts is None:
         return None
     groups = []
     for gi, grp in enumerate(part.groups):
-        points, points_std, survival = (np.concatenate([p[0][gi][j] for p in parts]) for j in range(3))
-        summary = summarize_front(points, w, reference_point, hv_method=hv_method, seed=seed)
-        groups.append(ParetoGroup(grp.motion, points, points_std, survival, grp.equal_point, summary))
+        merged = [np.concatenate([p[0][gi][j] for p in parts]) for j in range(4)]
+        points, points_std, survival, surv_pts = merged
+        summary, survivors = summarize_fronts(
+            points, surv_pts, w, reference_point, hv_method=hv_method, seed=seed
+        )
+        groups.append(
+            ParetoGroup(
+                grp.motion,
+                points,
+                points_std,
+                survival,
+                grp.equal_point,
+                summary,
+                surv_pts,
+                survivors,
+                equal_survival=grp.equal_survival,
+            )
+        )
     return dataclasses.replace(
         part,
         weights=w,
@@ -119,15 +135,10 @@ def weight_sweep_ranks(
             raise AmorError(f"{world.size} processes need --episodes >= {world.size}, got {episodes}")
         if world.rank != 0:
             options["on_step"] = None
-        mine = len(range(episodes)[rank_rows(episodes, world)])
+        ids = np.arange(episodes)[rank_rows(episodes, world)]
+        mine = len(ids)
         part = weight_sweep(
-            policy,
-            config,
-            objective,
-            levels=levels,
-            episodes=mine,
-            seed=rank_seed(seed, world.rank),
-            **options,
+            policy, config, objective, levels=levels, episodes=mine, seed=seed, episode_ids=ids, **options
         )
     parts = world.gather((part.returns, part.survival * mine, mine))
     if parts is None:

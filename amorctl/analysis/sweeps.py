@@ -2,7 +2,11 @@
 Fig. 4) and one objective's weight against its return (``evaluate --sweep``, Fig. 6).
 
 A sweep over K weight vectors is one :func:`amorctl.analysis.rollout.rollout` with one weight
-vector per environment. Nothing here prints. Documents: docs/pareto.md, docs/evaluate.md.
+vector per environment. Every episode's env is seeded from ``seed`` and the episode's key (motion
+group, sample index, episode) alone (:func:`~amorctl.analysis.eval_env.episode_seeds`), so a
+sample's returns do not depend on the other samples in the batch: a block of samples evaluated
+on its own (a ``torchrun`` rank) gives the rows the whole sweep gives. Nothing here prints.
+Documents: docs/pareto.md, docs/evaluate.md, docs/distributed.md.
 
 Shapes: K = weight vectors, G = motion groups, E = episodes per weight, L = sweep levels,
 m = objectives.
@@ -26,14 +30,37 @@ from amorctl.analysis.eval_env import (
     check_objective,
     close_env,
     episode_limit,
+    episode_seeds,
     make_eval_env,
 )
-from amorctl.analysis.front import FrontSummary, HypervolumeMethod, summarize_front
+from amorctl.analysis.front import (
+    FrontSummary,
+    HypervolumeMethod,
+    SurvivorFront,
+    summarize_fronts,
+    survivor_means,
+)
 from amorctl.analysis.rollout import Episodes, rollout
 from amorctl.core.config import TrainConfig
 from amorctl.core.errors import AmorError
 
 DEFAULT_SWEEP_LEVELS = (0.0, 0.25, 0.5, 0.75, 1.0)
+# Rows per policy call in a sweep. BLAS (PyTorch's MKL) picks its matmul kernel by the batch's
+# shape, so a row's actions could round differently in a batch of another size; in fixed-shape
+# calls a row's result depends on the row alone (measured: docs/distributed.md).
+POLICY_ROWS = 128
+
+
+def fixed_shape_policy(policy: Any, rows: int = POLICY_ROWS) -> Any:
+    """``policy`` called on blocks of exactly ``rows`` observations (the last block padded with
+    copies of the last row), so an env's actions do not depend on how many envs the batch has."""
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        n = len(obs)
+        padded = np.concatenate([obs, np.repeat(obs[-1:], -n % rows, axis=0)]) if n % rows else obs
+        return np.concatenate([np.asarray(policy(padded[i : i + rows])) for i in range(0, n, rows)])[:n]
+
+    return act
 
 
 # ---------------------------------------------------------------------------- pareto
@@ -48,6 +75,10 @@ class ParetoGroup:
         survival: [K] fraction of the E episodes that reached the time limit.
         equal_point: [m] the mean returns of the equal-weights (1/m) policy.
         summary: the front metrics of ``points`` (:class:`~amorctl.analysis.front.FrontSummary`).
+        survivor_points: [K, m] mean returns over the surviving episodes only (NaN rows: all fell).
+        survivors: the front of the surviving rows, at the same reference point
+            (:class:`~amorctl.analysis.front.SurvivorFront`).
+        equal_survival: fraction of the equal-weights policy's E episodes that survived.
     """
 
     motion: str
@@ -56,6 +87,9 @@ class ParetoGroup:
     survival: np.ndarray
     equal_point: np.ndarray
     summary: FrontSummary
+    survivor_points: np.ndarray
+    survivors: SurvivorFront
+    equal_survival: float = 1.0
 
 
 @dataclass
@@ -87,11 +121,14 @@ def pareto_sweep(
     seed: int = 0,
     sampling: str = "given",
     on_step: Progress | None = None,
+    sample_ids: np.ndarray | None = None,
 ) -> ParetoSweep:
     """Evaluate ``policy`` under every weight vector in ONE batched rollout and summarize the fronts.
 
     Envs: for each motion group g, each weight k (the K given plus the equal-weights 1/m vector)
-    and each episode e, one env (index ``(g * (K + 1) + k) * E + e``) running one episode.
+    and each episode e, one env (index ``(g * (K + 1) + k) * E + e``) running one episode, its
+    randomness (start clip and frame, clip switches, the toy task's noise) seeded by ``seed`` and
+    ``(g, 1 + sample_ids[k], e)`` (``(g, 0, e)`` for the equal-weights vector).
 
     Args:
         policy: ``policy(obs [N, D]) -> actions [N, A]``.
@@ -102,9 +139,11 @@ def pareto_sweep(
         reference_point: [m] hypervolume reference (for every group); None: the default rule of
             :func:`amorctl.analysis.front.default_reference_point`, per group.
         hv_method: ``auto`` | ``exact`` | ``monte_carlo``.
-        seed: env seed (RSI, clip draws).
+        seed: the episodes' seed (RSI, clip draws), with each episode's key.
         sampling: how ``weights`` were made (reported).
         on_step: progress callback (steps done, step cap).
+        sample_ids: [K] the weights' indices in the whole sweep (default ``0 .. K-1``): a block
+            of a larger sweep passes its rows' indices to get their episodes.
 
     Raises:
         AmorError: bad weights, episodes < 1, unknown motion, reference point of the wrong length.
@@ -121,6 +160,12 @@ def pareto_sweep(
     per_group = (k + 1) * episodes
     n = g * per_group
     env_motion = np.repeat(np.arange(g), per_group) if groups else None
+    ids = np.arange(k) if sample_ids is None else np.asarray(sample_ids, dtype=np.int64).reshape(-1)
+    if ids.shape != (k,):
+        raise AmorError(f"sample_ids: need {k} indices, one per weight vector, got {ids.size}")
+    slots = np.concatenate([1 + ids, [0]])  # [K+1]; 0: the equal-weights vector
+    grid = np.meshgrid(np.arange(g), slots, np.arange(episodes), indexing="ij")
+    env_seeds = episode_seeds(seed, np.stack(grid, axis=-1).reshape(n, 3))  # env order, as env_w
     env, names = make_eval_env(config, n, motions=groups or None, env_motion=env_motion, seed=seed)
     try:
         obj_names = tuple(env.reward_space.names)
@@ -132,7 +177,8 @@ def pareto_sweep(
             )
         env_w = np.tile(np.repeat(all_w, episodes, axis=0), (g, 1))  # [N, m]
         began = time.perf_counter()
-        result = rollout(policy, env, env_w, episodes=1, seed=seed, record_steps=False, on_step=on_step)
+        act = fixed_shape_policy(policy)
+        result = rollout(act, env, env_w, episodes=1, seed=env_seeds, record_steps=False, on_step=on_step)
         seconds = time.perf_counter() - began
         steps = int(result.episodes.length.sum())
         limit = episode_limit(env)
@@ -144,7 +190,8 @@ def pareto_sweep(
     rule = (
         "given (--ref-point)"
         if reference_point is not None
-        else "per motion: min - 0.1 * (max - min) per objective (analysis.front.default_reference_point)"
+        else "per motion: min - 0.1 * (max - min) per objective over the points of all episodes and of "
+        "the survivors, shared by both fronts (analysis.front.shared_reference_point)"
     )
     return ParetoSweep(
         objective_names=obj_names,
@@ -181,6 +228,10 @@ def _fronts(
     out = []
     for gi in range(g):
         pts = returns[gi, :k].mean(axis=1)
+        surv_pts = survivor_means(returns[gi, :k], survived[gi, :k])
+        summary, survivors = summarize_fronts(
+            pts, surv_pts, w, reference_point, hv_method=hv_method, seed=seed
+        )
         out.append(
             ParetoGroup(
                 motion=motions[gi],
@@ -188,7 +239,10 @@ def _fronts(
                 points_std=returns[gi, :k].std(axis=1),
                 survival=survived[gi, :k].mean(axis=1),
                 equal_point=returns[gi, k].mean(axis=0),
-                summary=summarize_front(pts, w, reference_point, hv_method=hv_method, seed=seed),
+                summary=summary,
+                survivor_points=surv_pts,
+                survivors=survivors,
+                equal_survival=float(survived[gi, k].mean()),
             )
         )
     return out
@@ -224,6 +278,7 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
                 "hypervolume": s.hypervolume.to_dict(),
                 "expected_utility": s.expected_utility,
                 "sparsity": s.sparsity,
+                "survivors": _survivors_dict(grp),
             }
         )
     return {
@@ -241,11 +296,28 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
     }
 
 
+def _survivors_dict(grp: ParetoGroup) -> dict[str, Any]:
+    """The ``survivors`` object of a motion in pareto.json (docs/pareto.md)."""
+    sv = grp.survivors
+    s = sv.summary
+    return {
+        "count": int(sv.survived.sum()),
+        "fallen": int((~sv.survived).sum()),
+        "points": _floats(grp.survivor_points),
+        "non_dominated": [bool(v) for v in sv.non_dominated],
+        "non_dominated_fraction": None if s is None else s.non_dominated_fraction,
+        "hypervolume": None if s is None else s.hypervolume.to_dict(),
+        "expected_utility": None if s is None else s.expected_utility,
+        "sparsity": None if s is None else s.sparsity,
+    }
+
+
 def pareto_csv(sweep: ParetoSweep) -> str:
     """``pareto.csv``: one row per (motion, weight vector), plus the equal-weights row per motion.
 
     Columns: motion, sample (index, or ``equal`` for 1/m), ``w_<obj>``, ``J_<obj>`` (mean
-    unscaled return), ``J_<obj>_std``, survival, non_dominated, ``nd_<a>_<b>`` per objective pair.
+    unscaled return), ``J_<obj>_std``, survival, non_dominated, ``nd_<a>_<b>`` per objective pair,
+    ``J_<obj>_survivors`` (mean over surviving episodes; nan when all fell), non_dominated_survivors.
     """
     names = sweep.objective_names
     m = len(names)
@@ -259,6 +331,8 @@ def pareto_csv(sweep: ParetoSweep) -> str:
         + [f"J_{n}_std" for n in names]
         + ["survival", "non_dominated"]
         + [f"nd_{names[i]}_{names[j]}" for i, j in pairs]
+        + [f"J_{n}_survivors" for n in names]
+        + ["non_dominated_survivors"]
     )
     for grp in sweep.groups:
         s = grp.summary
@@ -270,6 +344,8 @@ def pareto_csv(sweep: ParetoSweep) -> str:
                 + [repr(float(v)) for v in grp.points_std[k]]
                 + [repr(float(grp.survival[k])), int(s.non_dominated[k])]
                 + [int(s.pairwise[p][k]) for p in pairs]
+                + [repr(float(v)) for v in grp.survivor_points[k]]
+                + [int(grp.survivors.non_dominated[k])]
             )
         writer.writerow(
             [grp.motion, "equal"]
@@ -278,6 +354,7 @@ def pareto_csv(sweep: ParetoSweep) -> str:
             + [""] * m
             + ["", ""]
             + [""] * len(pairs)
+            + [""] * (m + 1)
         )
     return buf.getvalue()
 
@@ -339,8 +416,12 @@ def weight_sweep(
     episodes: int = 16,
     seed: int = 0,
     on_step: Progress | None = None,
+    episode_ids: np.ndarray | None = None,
 ) -> WeightSweep:
     """Sweep one objective's weight over ``levels`` in one batched rollout (L * E envs).
+
+    Env ``l * E + e`` runs level l's episode e, seeded by ``seed`` and ``(l, episode_ids[e])``
+    (default ``episode_ids``: ``0 .. E-1``; a block of a larger sweep passes its indices).
 
     Raises:
         AmorError: unknown objective, fewer than 3 levels, episodes < 1, unknown motion.
@@ -354,14 +435,19 @@ def weight_sweep(
     w = sweep_levels_weights(idx, len(names), levels)
     n_lv = w.shape[0]
     n = n_lv * episodes
+    ids = np.arange(episodes) if episode_ids is None else np.asarray(episode_ids, dtype=np.int64).reshape(-1)
+    if ids.shape != (episodes,):
+        raise AmorError(f"episode_ids: need {episodes} indices, got {ids.size}")
+    grid = np.meshgrid(np.arange(n_lv), ids, indexing="ij")
+    env_seeds = episode_seeds(seed, np.stack(grid, axis=-1).reshape(n, 2))
     env, _ = make_eval_env(config, n, motions=motions, seed=seed)
     try:
         ro = rollout(
-            policy,
+            fixed_shape_policy(policy),
             env,
             np.repeat(w, episodes, axis=0),
             episodes=1,
-            seed=seed,
+            seed=env_seeds,
             record_steps=False,
             on_step=on_step,
         )

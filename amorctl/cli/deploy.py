@@ -1,8 +1,8 @@
 """``amorctl deploy``: export a run to an ONNX bundle, run it sim2sim, check it (docs/deploy.md).
 
 Torch-free at import: ``export`` imports torch when it runs; ``run`` and ``check`` never do, so
-``python -m amorctl.cli.deploy run ...`` works on a machine without torch (the full ``amorctl``
-entry point imports every subcommand, some of which need torch).
+``amorctl deploy run ...`` (the ``amorctl`` entry point loads only the subcommand it runs) and
+``python -m amorctl.cli.deploy run ...`` work on a machine without torch.
 """
 
 from __future__ import annotations
@@ -162,6 +162,13 @@ def run_cmd(
     bundle, rand = _load(bundle_dir, randomize)
     source, _ = _weights_source(bundle, weights, schedule)
     runtime = Runtime(bundle, randomization=rand, realtime=realtime, max_misses=max_misses)
+    if out is not None and bundle.meta.get("objective_set") is not None:
+        from amorctl.deploy.runtime_rewards import load_reward_meter
+
+        try:  # the log gets /rewards when the objective set's plugin is installed
+            runtime.reward_meter = load_reward_meter(bundle)
+        except AmorError as exc:
+            err_console.print(f"warning: rewards not logged: {exc}")
     live = None
     if listen is not None:
         address = _listen_address(listen, host)
@@ -206,6 +213,8 @@ def run_cmd(
         f"policy {info['policy_ms_median']:.3f} ms median / {info['policy_ms_p99']:.3f} ms p99, "
         f"held {info['held_steps']} steps"
     )
+    if info["returns"] is not None:
+        console.print("returns " + ", ".join(f"{k}={v:.2f}" for k, v in info["returns"].items()))
     if info["input"] is not None:
         i = info["input"]
         console.print(

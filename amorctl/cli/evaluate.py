@@ -192,7 +192,7 @@ def evaluate(
     show = not json_out and not quiet and console.is_terminal
     sweep_doc = None
     if sweep is not None:  # first, while every torchrun rank takes part (docs/distributed.md)
-        figure = (out if out is not None else run / "evaluate") / f"sweep-{sweep}.png"
+        figure = (out if out is not None else opened.output_dir("evaluate")) / f"sweep-{sweep}.png"
         sweep_doc = _sweep(policy, config, sweep, sweep_levels, motion, episodes, seed, figure, show)
     if quiet:
         return

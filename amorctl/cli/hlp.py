@@ -9,10 +9,10 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Group
-from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from amorctl.cli.live_view import TrainingView, fmt
 from amorctl.cli.output import console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.hlp.config import PRESETS, HlpConfig, load_hlp_config, load_hlp_preset, merge
@@ -26,77 +26,51 @@ app = typer.Typer(
 MotionsOpt = Annotated[list[str] | None, typer.Option("--motion", "-m", help="Clip name (repeatable).")]
 
 
-def _fmt(value: float, spec: str = ".3g") -> str:
-    return "–" if not math.isfinite(value) else format(value, spec)
-
-
-class _Display:
+class _Display(TrainingView):
     """The live view of ``hlp train``: progress, discriminator, PPO and mean w per objective."""
 
     def __init__(self, out: Path, live: bool) -> None:
-        self.out, self.live_enabled = out, live
-        self.names: tuple[str, ...] = ()
-        self.start = 0
-        self.live: Live | None = None
-        self.last_print = 0.0
+        super().__init__(live)
+        self.out = out
 
     def on_start(self, s: Any, start: int, total: int) -> None:
-        self.names, self.start = tuple(s.meta["objectives"]), start
-        console.print(
+        self.begin(
+            s.meta["objectives"],
+            start,
             f"[bold]amorctl hlp train[/bold] on {s.run.path} (AMOR iteration {s.llp_checkpoint.iteration}, "
-            f"frozen) · {s.env.num_envs} envs · {len(self.names)} objectives\n"
+            f"frozen) · {s.env.num_envs} envs · {len(s.meta['objectives'])} objectives\n"
             f"HLP directory: {self.out}" + (f" (resuming at iteration {start})" if start else ""),
-            highlight=False,
         )
-        if self.live_enabled:
-            self.live = Live(console=console, refresh_per_second=4, transient=False)
-            self.live.start()
 
     def render(self, m: dict[str, float], total: int, elapsed: float) -> Group:
         it = int(m["iteration"])
-        left = elapsed / max(it - self.start, 1) * (total - it)
+        left = self.seconds_left(it, total, elapsed)
         g = m.get
         head = Text(
             f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   "
             f"{m['env_steps_per_s']:,.0f} steps/s   elapsed {elapsed:.0f} s   left {left:.0f} s\n"
-            f"reward r^D {_fmt(m['reward/mean'])}   episode return {_fmt(m['episode/return'])}   "
-            f"length {_fmt(m['episode/length'], '.1f')}   w entropy {_fmt(m['w/entropy'])}\n"
-            f"D: acc dataset {_fmt(g('disc/accuracy_dataset', math.nan), '.2f')}   "
-            f"acc policy {_fmt(g('disc/accuracy_policy_rollout', math.nan), '.2f')}   "
-            f"logit dataset {_fmt(g('disc/logit_dataset', math.nan))}   "
-            f"logit policy {_fmt(g('disc/logit_policy_rollout', math.nan))}   "
-            f"gp {_fmt(g('disc/gp', math.nan))}\n"
-            f"PPO: loss {_fmt(m['loss/total'])}   value {_fmt(m['loss/value'])}   kl {_fmt(m['kl'])}   "
-            f"logit std {_fmt(m['logit_std'])}"
+            f"reward r^D {fmt(m['reward/mean'])}   episode return {fmt(m['episode/return'])}   "
+            f"length {fmt(m['episode/length'], '.1f')}   w entropy {fmt(m['w/entropy'])}\n"
+            f"D: acc dataset {fmt(g('disc/accuracy_dataset', math.nan), '.2f')}   "
+            f"acc policy {fmt(g('disc/accuracy_policy_rollout', math.nan), '.2f')}   "
+            f"logit dataset {fmt(g('disc/logit_dataset', math.nan))}   "
+            f"logit policy {fmt(g('disc/logit_policy_rollout', math.nan))}   "
+            f"gp {fmt(g('disc/gp', math.nan))}\n"
+            f"PPO: loss {fmt(m['loss/total'])}   value {fmt(m['loss/value'])}   kl {fmt(m['kl'])}   "
+            f"logit std {fmt(m['logit_std'])}"
         )
         table = Table(box=None, pad_edge=False)
         table.add_column("objective")
         table.add_column("mean w_t", justify="right")
         for name in self.names:
-            table.add_row(name, _fmt(m[f"w/{name}"], ".3f"))
+            table.add_row(name, fmt(m[f"w/{name}"], ".3f"))
         return Group(head, table)
 
-    def on_iteration(self, m: dict[str, float], total: int, elapsed: float) -> None:
-        if self.live is not None:
-            self.live.update(self.render(m, total, elapsed))
-            return
-        now = time.monotonic()
-        it = int(m["iteration"])
-        if now - self.last_print >= 10.0 or it == total or it - self.start <= 1:
-            self.last_print = now
-            ws = " ".join(f"{n}={m[f'w/{n}']:.3f}" for n in self.names)
-            console.print(
-                f"it {it}/{total}  r^D {_fmt(m['reward/mean'])}  "
-                f"D acc {_fmt(m.get('disc/accuracy_dataset', math.nan), '.2f')}/"
-                f"{_fmt(m.get('disc/accuracy_policy_rollout', math.nan), '.2f')}  w {ws}",
-                highlight=False,
-                soft_wrap=True,
-            )
-
-    def stop(self) -> None:
-        if self.live is not None:
-            self.live.stop()
-            self.live = None
+    def line(self, m: dict[str, float]) -> str:
+        acc = "/".join(
+            fmt(m.get(f"disc/accuracy_{k}", math.nan), ".2f") for k in ("dataset", "policy_rollout")
+        )
+        return f"r^D {fmt(m['reward/mean'])}  D acc {acc}  w {self.per_objective(m, 'w', '.3f')}"
 
 
 def _config(
@@ -161,7 +135,10 @@ def train(
     else:
         config = _config(preset, config_file, window, motion, iterations, seed, num_envs)
         if out is None:
-            out = run / "hlp" / f"v{config.discriminator.window}-{time.strftime('%Y%m%d-%H%M%S')}"
+            from amorctl.train.rundir import RunDir  # pretrained:NAME writes to ./NAME/hlp
+
+            stamp = f"v{config.discriminator.window}-{time.strftime('%Y%m%d-%H%M%S')}"
+            out = RunDir(run).output_dir("hlp") / stamp
     display = _Display(out, live=console.is_terminal and not json_out)
     try:
         result = train_hlp(

@@ -1,35 +1,80 @@
-"""The ``amorctl`` entry point: builds the typer app and turns AmorError into one line + exit code."""
+"""The ``amorctl`` entry point: builds the typer app and turns AmorError into one line + exit code.
+
+Subcommands are loaded lazily (:class:`LazyGroup`): ``amorctl X ...`` imports only the module of
+``X``, so ``amorctl deploy run`` and ``amorctl deploy check`` never import torch (the deploy
+runtime is torch-free, docs/deploy.md) and every command starts without importing the others.
+``amorctl --help`` loads them all to list their help.
+"""
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+import typer.main
+from typer.core import TyperGroup
+from typer.models import CommandInfo
 
 from amorctl import __version__
-from amorctl.cli import characters, data, deploy, evaluate, hlp, pareto, plugins, preprocess, train, tune
 from amorctl.core.errors import AmorError
+
+#: subcommand -> (module under amorctl.cli, attribute): a ``typer.Typer`` sub-app or a command
+#: function; in the order ``amorctl --help`` lists them.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "plugins": ("plugins", "app"),
+    "train": ("train", "train"),
+    "characters": ("characters", "app"),
+    "preprocess": ("preprocess", "preprocess"),
+    "data": ("data", "app"),
+    "pareto": ("pareto", "pareto"),
+    "evaluate": ("evaluate", "evaluate"),
+    "tune": ("tune", "tune"),
+    "deploy": ("deploy", "app"),
+    "hlp": ("hlp", "app"),
+    "runs": ("runs", "app"),
+}
+
+
+def load_subcommand(name: str) -> Any:
+    """Import subcommand ``name``'s module and build its click command."""
+    module_name, attr = SUBCOMMANDS[name]
+    target = getattr(importlib.import_module(f"amorctl.cli.{module_name}"), attr)
+    if isinstance(target, typer.Typer):
+        command: Any = typer.main.get_group(target)  # a group even with one command
+    else:
+        command = typer.main.get_command_from_info(
+            CommandInfo(name=name, callback=target),
+            pretty_exceptions_short=True,
+            rich_markup_mode=app.rich_markup_mode,
+        )
+    command.name = name
+    return command
+
+
+class LazyGroup(TyperGroup):
+    """The root group: :data:`SUBCOMMANDS` are imported when first asked for."""
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return [*SUBCOMMANDS, *(n for n in super().list_commands(ctx) if n not in SUBCOMMANDS)]
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        if cmd_name in SUBCOMMANDS and cmd_name not in self.commands:
+            self.commands[cmd_name] = load_subcommand(cmd_name)
+        return super().get_command(ctx, cmd_name)
+
 
 app = typer.Typer(
     name="amorctl",
+    cls=LazyGroup,
     help="Adaptive character control through multi-objective RL (AMOR): train one policy for every "
     "trade-off between tracking objectives, then choose, tune or schedule the trade-off.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-app.add_typer(plugins.app, name="plugins")
-app.command("train")(train.train)
-app.add_typer(characters.app, name="characters")
-app.command("preprocess")(preprocess.preprocess)
-app.add_typer(data.app, name="data")
-app.command("pareto")(pareto.pareto)
-app.command("evaluate")(evaluate.evaluate)
-app.command("tune")(tune.tune)
-app.add_typer(deploy.app, name="deploy")
-app.add_typer(hlp.app, name="hlp")
 
 
 def _version(value: bool) -> None:

@@ -52,7 +52,7 @@ def rollout_progress(enabled: bool, what: str) -> Iterator[Any]:
 
 
 def pareto(
-    run: Annotated[Path, typer.Argument(help="Run directory written by `amorctl train`.")],
+    run: Annotated[Path, typer.Argument(help="Run directory of `amorctl train`, or pretrained:NAME.")],
     motion: MotionOpt = None,
     samples: Annotated[
         int, typer.Option("--samples", "-k", help="K weight vectors drawn from Dirichlet(1).")
@@ -83,6 +83,14 @@ def pareto(
             "--data", help="Held-out motion dataset to run on (clips re-encoded with the run's VAE)."
         ),
     ] = None,
+    coverage: Annotated[
+        bool,
+        typer.Option(
+            "--coverage",
+            help="Instead of the front: predicted vs achieved scalarized return and training episodes "
+            "per simplex region (K weights spread evenly over the regions; docs/pareto.md).",
+        ),
+    ] = False,
     json_out: JsonFlag = False,
 ) -> None:
     """Sample K weight vectors, evaluate all in one batched rollout, and report the Pareto front."""
@@ -92,10 +100,15 @@ def pareto(
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
     opened = RunDir.open(run)
     policy, config = opened.policy(), config_with_dataset(opened.config, data)
+    if coverage:  # weight coverage of the simplex (amorctl.cli.pareto_coverage)
+        from amorctl.cli.pareto_coverage import coverage_command
+
+        coverage_command(opened, policy, config, motion, samples, grid, seed, out, json_out)
+        return
     names = tuple(policy.objectives)
     weights, sampling = sweep_weights(len(names), samples, grid=grid, seed=seed)
     reference = parse_reference_point(ref_point, names) if ref_point is not None else None
-    out_dir = out if out is not None else run / "pareto"
+    out_dir = out if out is not None else opened.output_dir("pareto")  # pretrained: ./NAME/pareto
     quiet = distributed.launched_rank() != 0  # under torchrun rank 0 alone prints and writes
     show = not json_out and not quiet and console.is_terminal
     if not json_out and not quiet:
@@ -115,7 +128,7 @@ def pareto(
     from amorctl.outputs.plots import pareto_figure
 
     files = {s: str(out_dir / f"pareto.{s}") for s in ("json", "csv", "png", "svg")}
-    doc = {"run": str(run), **pareto_to_dict(sweep, files)}
+    doc = {"run": opened.label, **pareto_to_dict(sweep, files)}
     pareto_figure(sweep, [Path(files["png"]), Path(files["svg"])])
     atomic_write_text(files["csv"], pareto_csv(sweep))
     atomic_write_text(files["json"], json.dumps(doc, indent=2) + "\n")
@@ -125,10 +138,24 @@ def pareto(
     _print_summary(doc, files)
 
 
+def _survivor_cells(sv: dict[str, Any]) -> tuple[str, str, str]:
+    """Survivors, their front's hypervolume and non-dominated fraction (the same reference point)."""
+    total = sv["count"] + sv["fallen"]
+    if sv["hypervolume"] is None:
+        return f"0/{total}", "–", "–"
+    return (
+        f"{sv['count']}/{total}",
+        f"{sv['hypervolume']['value']:.6g}",
+        f"{sv['non_dominated_fraction']:.1%}",
+    )
+
+
 def _print_summary(doc: dict[str, Any], files: dict[str, str]) -> None:
     """The front metrics per motion as a table, then timing and where the files are."""
     table = Table(title="Pareto front (objectives maximized; returns unscaled)")
-    for col in ("motion", "points", "non-dominated", "hypervolume", "HV method", "EUM", "sparsity"):
+    cols = ("motion", "points", "non-dominated", "hypervolume", "HV method", "EUM", "sparsity", "survived",
+            "HV survivors", "ND survivors")  # fmt: skip
+    for col in cols:
         table.add_column(col, justify="left" if col in ("motion", "HV method") else "right")
     for grp in doc["motions"]:
         hv = grp["hypervolume"]
@@ -142,6 +169,7 @@ def _print_summary(doc: dict[str, Any], files: dict[str, str]) -> None:
             method,
             f"{grp['expected_utility']:.4g}",
             f"{grp['sparsity']:.4g}",
+            *_survivor_cells(grp["survivors"]),
         )
     console.print(table)
     t = doc["timing"]

@@ -12,10 +12,10 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Group
-from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from amorctl.cli.live_view import TrainingView, fmt, fmt_time
 from amorctl.cli.output import console, print_json
 from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
 from amorctl.core.errors import AmorError
@@ -23,99 +23,71 @@ from amorctl.core.vecenv import VectorEnv
 from amorctl.core.weights import parse_weight_pairs
 from amorctl.train import distributed
 from amorctl.train.loop import train_run
+from amorctl.train.metrics import family_survival
 from amorctl.train.rundir import RunDir
 
 #: Exit status after a signal stopped training (and a checkpoint was saved): 128 + signal number.
 SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 
 
-def _fmt_time(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "?"
-    seconds = int(seconds)
-    return f"{seconds // 3600:d}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
-
-
-def _fmt(value: float, spec: str = ".3g") -> str:
-    return "–" if not math.isfinite(value) else format(value, spec)
-
-
-class _Display:
+class _Display(TrainingView):
     """The live view: progress, throughput, losses, episode statistics, per-objective table."""
 
     def __init__(self, out: Path, config: TrainConfig, live: bool) -> None:
-        self.out, self.config, self.live_enabled = out, config, live
-        self.names: tuple[str, ...] = ()
-        self.start = 0
-        self.live: Live | None = None
-        self.last_print = 0.0
+        super().__init__(live)
+        self.out, self.config = out, config
 
     def on_start(self, env: VectorEnv, start: int, total: int) -> None:
-        self.names, self.start = tuple(env.reward_space.names), start
+        names = env.reward_space.names
         c = self.config
         where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
         mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else "w ~ Dirichlet(1) per episode"
-        console.print(
+        self.begin(
+            names,
+            start,
             f"[bold]amorctl train[/bold] {where} · backend {c.run.backend} · {c.env.num_envs} envs · "
-            f"obs {env.obs_dim} · actions {env.action_dim} · {len(self.names)} objectives · {mode}\n"
+            f"obs {env.obs_dim} · actions {env.action_dim} · {len(names)} objectives · {mode}\n"
             f"run directory: {self.out}" + (f" (resuming at iteration {start})" if start else ""),
-            highlight=False,
         )
-        if self.live_enabled:
-            self.live = Live(console=console, refresh_per_second=4, transient=False)
-            self.live.start()
 
     def render(self, m: dict[str, float], total: int, elapsed: float) -> Group:
         it = int(m["iteration"])
-        done = it - self.start
-        left = elapsed / max(done, 1) * (total - it)
+        left = self.seconds_left(it, total, elapsed)
         ep_s = m["episode/length"] / (50.0 if self.config.env.kind != "gym" else 1.0)
         head = Text(
             f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   "
             f"{m['env_steps_per_s']:,.0f} steps/s   "
-            f"elapsed {_fmt_time(elapsed)}   left {_fmt_time(left)}\n"
-            f"loss {_fmt(m['loss/total'])} (policy {_fmt(m['loss/policy'])}, value {_fmt(m['loss/value'])}, "
-            f"entropy {_fmt(m['loss/entropy'])})   KL {_fmt(m['kl'])}   "
-            f"clip {_fmt(m['clip_fraction'], '.2f')}   "
-            f"lr {_fmt(m['learning_rate'])}   action std {_fmt(m['action_std'])}\n"
-            f"episodes {int(m['episodes'])}   length {_fmt(m['episode/length'], '.1f')} steps "
-            f"({_fmt(ep_s, '.2f')} s)   survival {_fmt(100 * m['episode/survival'], '.0f')}%   "
-            f"return·w {_fmt(m['return/scalarized'])}"
+            f"elapsed {fmt_time(elapsed)}   left {fmt_time(left)}\n"
+            f"loss {fmt(m['loss/total'])} (policy {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])}, "
+            f"entropy {fmt(m['loss/entropy'])})   KL {fmt(m['kl'])}   "
+            f"clip {fmt(m['clip_fraction'], '.2f')}   "
+            f"lr {fmt(m['learning_rate'])}   action std {fmt(m['action_std'])}\n"
+            f"episodes {int(m['episodes'])}   length {fmt(m['episode/length'], '.1f')} steps "
+            f"({fmt(ep_s, '.2f')} s)   survival {fmt(100 * m['episode/survival'], '.0f')}%   "
+            f"return·w {fmt(m['return/scalarized'])}"
         )
+        if families := family_survival(m):  # one number is pinned near 0 by the hardest clips
+            head.append(f"\nsurvival by clip family (last 100 episodes each): {families}")
         table = Table(box=None, pad_edge=False)
         for col in ("objective", "episode return", "reward/step", "critic expl. var."):
             table.add_column(col, justify="right" if col != "objective" else "left")
         for name in self.names:
             table.add_row(
                 name,
-                _fmt(m[f"return/{name}"]),
-                _fmt(m[f"reward/{name}"]),
-                _fmt(m[f"explained_variance/{name}"], ".2f"),
+                fmt(m[f"return/{name}"]),
+                fmt(m[f"reward/{name}"]),
+                fmt(m[f"explained_variance/{name}"], ".2f"),
             )
         return Group(head, table)
 
-    def on_iteration(self, m: dict[str, float], total: int, elapsed: float) -> None:
-        if self.live is not None:
-            self.live.update(self.render(m, total, elapsed))
-            return
-        now = time.monotonic()
-        it = int(m["iteration"])
-        if now - self.last_print >= 10.0 or it == total or it - self.start <= 1:
-            self.last_print = now
-            rets = " ".join(f"{n}={_fmt(m[f'return/{n}'])}" for n in self.names)
-            console.print(
-                f"it {it}/{total}  {m['env_steps_per_s']:,.0f} steps/s  loss {_fmt(m['loss/total'])}  "
-                f"value {_fmt(m['loss/value'])}  kl {_fmt(m['kl'])}  "
-                f"ep len {_fmt(m['episode/length'], '.1f')}  "
-                f"survival {_fmt(m['episode/survival'], '.2f')}  returns {rets}",
-                highlight=False,
-                soft_wrap=True,
-            )
-
-    def stop(self) -> None:
-        if self.live is not None:
-            self.live.stop()
-            self.live = None
+    def line(self, m: dict[str, float]) -> str:
+        return (
+            f"{m['env_steps_per_s']:,.0f} steps/s  "
+            f"loss {fmt(m['loss/total'])}  value {fmt(m['loss/value'])}  kl {fmt(m['kl'])}  "
+            f"ep len {fmt(m['episode/length'], '.1f')}  "
+            f"survival {fmt(m['episode/survival'], '.2f')}  returns {self.per_objective(m, 'return')}"
+            + (f"  survival by family: {families}" if (families := family_survival(m)) else "")
+        )
 
 
 #: The command-line flag of each config field ``train`` takes as an option (named in errors).

@@ -3,7 +3,7 @@
 A config is built in layers, each overriding the one before: the dataclass defaults (which equal
 the ``quick`` preset), a preset file (``amorctl/presets/<name>.toml``), the user's ``--config``
 file, then command-line options. Every layer is partial TOML with the sections ``[run]``,
-``[env]``, ``[network]`` and ``[ppo]``; a key that is not in the schema is rejected by name.
+``[env]``, ``[network]``, ``[ppo]`` and ``[weights]``; a key that is not in the schema is rejected by name.
 Every number has bounds in its field's metadata (``min``/``max``, ``gt`` for an exclusive lower
 bound); a value outside them is refused naming the file (or command-line flag) and the key:
 ``runs/x/config.toml: [ppo] num_steps = 100000000 is out of range (1..100000)``.
@@ -52,11 +52,12 @@ def _doc(
     return field(default=default, metadata={k: v for k, v in meta.items() if v is not None})
 
 
-PRESETS: tuple[str, ...] = ("quick", "paper")
+PRESETS: tuple[str, ...] = ("quick", "paper", "science")
 ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
 ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
 PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
+RETURN_NORMS: tuple[str, ...] = ("off", "value", "value+advantage")
 #: The largest rollout batch (num_envs * num_steps) a config may ask for: 32x the paper's.
 MAX_BATCH = 1 << 22
 #: The longest string field (paths, ids, weight strings).
@@ -160,6 +161,38 @@ class PPOConfig:
         "fp32, bf16 (autocast; fp32 weights and losses), or auto: bf16 if the CPU has it",
         choices=PRECISIONS,
     )
+    return_norm: str = _doc(
+        "off",
+        "off (the paper); value: per-objective value errors over running return stds; "
+        "value+advantage: also A_k over running advantage stds before A·w",
+        choices=RETURN_NORMS,
+    )
+
+
+@dataclass(frozen=True)
+class WeightsConfig:
+    """Where on the simplex training episodes draw w (docs/moppo.md, Levers); kind=tracking only."""
+
+    alpha: float = _doc(
+        1.0, "Dirichlet concentration of w (1 = uniform on the simplex, the paper)", gt=0, max=1000
+    )
+    corner_fraction: float = _doc(
+        0.0, "share of episodes whose w is a simplex corner (one objective)", min=0, max=1
+    )
+    edge_fraction: float = _doc(
+        0.0, "share of episodes whose w is an edge midpoint (two objectives, 1/2 each)", min=0, max=1
+    )
+    axis_fraction: float = _doc(
+        0.0, "share of episodes on a sweep line: w_k ~ U(0, 1), the other objectives equal", min=0, max=1
+    )
+    adaptive_fraction: float = _doc(
+        0.0, "share of episodes near anchors whose achieved return lags the critic's prediction", min=0, max=1
+    )
+
+    @property
+    def plain(self) -> bool:
+        """True for the paper's Dirichlet(1) and no mixing."""
+        return self == WeightsConfig()
 
 
 @dataclass(frozen=True)
@@ -170,9 +203,16 @@ class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
+    weights: WeightsConfig = field(default_factory=WeightsConfig)
 
 
-SECTIONS: dict[str, type] = {"run": RunConfig, "env": EnvConfig, "network": NetworkConfig, "ppo": PPOConfig}
+SECTIONS: dict[str, type] = {
+    "run": RunConfig,
+    "env": EnvConfig,
+    "network": NetworkConfig,
+    "ppo": PPOConfig,
+    "weights": WeightsConfig,
+}
 
 
 def _range_text(meta: Mapping[str, Any]) -> str:
@@ -249,7 +289,7 @@ def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") ->
             or out of its bounds.
     """
     if not isinstance(data, Mapping):
-        raise AmorError(f"{source}: expected tables [run], [env], [network], [ppo]")
+        raise AmorError(f"{source}: expected tables [run], [env], [network], [ppo], [weights]")
     sections: dict[str, Any] = {}
     for section, values in data.items():
         if section not in SECTIONS:
@@ -301,12 +341,34 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
             f"[ppo] num_minibatches = {p.num_minibatches} exceeds the batch size ({batch})",
         ),
     ]
+    checks += _lever_checks(config)
     for ok, message in checks:
         if not ok:
             raise AmorError(f"{source}: {message}")
     if e.fixed_weights and e.fixed_weights.strip().lower() != "uniform":
         parse_weight_pairs(e.fixed_weights, source=f"{source}: [env] fixed_weights")
     return config
+
+
+def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
+    """The training levers' rules: the weight-sampling shares fit in one, and only the torch-cpu
+    backend (and, for [weights], its tracking env) implements them."""
+    w, p = config.weights, config.ppo
+    shares = w.corner_fraction + w.edge_fraction + w.axis_fraction + w.adaptive_fraction
+    torch_cpu = config.run.backend == "torch-cpu"
+    return [
+        (shares <= 1 + 1e-9, f"[weights] corner + edge + axis + adaptive fractions = {shares:g} exceed 1"),
+        (
+            w.plain or (torch_cpu and config.env.kind == "tracking"),
+            "[weights] options other than the defaults need run.backend = 'torch-cpu' and "
+            f"env.kind = 'tracking' (got {config.run.backend!r}, {config.env.kind!r})",
+        ),
+        (
+            p.return_norm == "off" or torch_cpu,
+            f"[ppo] return_norm = {p.return_norm!r} needs run.backend = 'torch-cpu' "
+            f"(got {config.run.backend!r})",
+        ),
+    ]
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
@@ -337,7 +399,7 @@ def preset_path(name: str) -> Path:
 
 
 def load_preset(name: str) -> TrainConfig:
-    """A built-in preset (``quick`` or ``paper``) as a full config."""
+    """A built-in preset (``quick``, ``paper`` or ``science``) as a full config."""
     return load_config(preset_path(name))
 
 

@@ -12,6 +12,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from amorctl.core.model_source import (  # the model-path bits; re-exported here for plugins
+    ModelSource,
+    PackageModel,
+    _ModelPathField,
+    describe_model_source,
+    find_package_file,
+    package_model,
+    resolve_model_source,
+)
+
+__all__ = [
+    "JOINT_GROUPS", "KEYPOINTS", "ActuatorModel", "BackendSpec", "CharacterSpec", "ImportOptions",
+    "JointGroup", "JointSpec", "LazyCharacter", "ModelSource", "MotionFormatSpec", "ObjectiveSetSpec",
+    "PackageModel", "describe_model_source", "find_package_file", "package_model", "resolve_model_source",
+]  # fmt: skip
+
 if TYPE_CHECKING:
     from amorctl.core.contracts import Backend, ObjectiveSet
 
@@ -70,11 +86,16 @@ class ActuatorModel:
 
 @dataclass(frozen=True)
 class CharacterSpec:
-    """A simulated character: its model file and everything needed to control and track it."""
+    """A simulated character: its model file and everything needed to control and track it.
+
+    ``mjcf_path`` may be given as a path or as a zero-argument callable (a :data:`ModelSource`,
+    e.g. :func:`package_model`); it is resolved when first read, and reads as a :class:`Path`.
+    ``model_source`` is what was given (listings read it without resolving).
+    """
 
     name: str
     description: str
-    mjcf_path: Path
+    mjcf_path: _ModelPathField = _ModelPathField()  # noqa: RUF009  # a descriptor: reads as a Path
     root_body: str
     joints: tuple[JointSpec, ...]  # actuated hinges in MJCF qpos order
     end_effectors: tuple[str, ...]  # body names: hands then feet, (left, right) each
@@ -95,6 +116,16 @@ class CharacterSpec:
     add_floor: bool = True  # add a ground plane at z = 0 when the model has no plane/height field
 
     @property
+    def model_source(self) -> ModelSource:
+        """The model file as the plugin gave it (not resolved)."""
+        return self.__dict__["_mjcf_path_source"]
+
+    @property
+    def model_resolved(self) -> bool:
+        """Whether ``mjcf_path`` has been resolved (read) already."""
+        return "_mjcf_path_resolved" in self.__dict__
+
+    @property
     def substeps(self) -> int:
         """Physics steps per control step."""
         return self.physics_hz // self.control_hz
@@ -110,6 +141,19 @@ class CharacterSpec:
     def group_indices(self, group: JointGroup) -> tuple[int, ...]:
         """Indices into the actuated-joint vector of one group's joints."""
         return tuple(i for i, j in enumerate(self.joints) if j.group == group)
+
+
+@dataclass(frozen=True)
+class LazyCharacter:
+    """A character registered by name whose :class:`CharacterSpec` is built when first needed
+    (``registry.character(name)``), e.g. by ``character_from_mjcf`` from a model in another
+    package: registration then touches no file, and a missing model fails only the commands that
+    use this character, with ``build``'s error naming it.
+    """
+
+    name: str
+    build: Callable[[], CharacterSpec]
+    description: str = ""
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ used by tests, and the MO-Gymnasium adapter). Shapes use N = num_envs, m = num_o
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -46,8 +47,16 @@ class VectorEnv(Protocol):
         """[N, m] float32: the weights of each env's current episode."""
         ...
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start all envs anew. Returns obs [N, obs_dim] float32 and an info dict."""
+    def reset(
+        self, seed: int | Sequence[int] | np.ndarray | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start all envs anew. Returns obs [N, obs_dim] float32 and an info dict.
+
+        ``seed``: None keeps the env's generator; one int reseeds the one generator the batch
+        draws from; [N] ints (as Gymnasium's vector envs take them) give env i a generator of
+        its own seeded with ``seed[i]``, so its episodes (start states, clip switches, noise,
+        hazards) do not depend on the batch around it (:mod:`amorctl.core.env_random`).
+        """
         ...
 
     def step(

@@ -36,7 +36,7 @@ OPSET = 17
 CONTEXT_PARTS = ("ref_frame", "latent", "future_frames")
 #: the keys of ``deploy.json`` and of the ONNX ``metadata_props`` (docs/deploy.md describes each).
 METADATA_KEYS = (
-    "format", "amorctl_version", "run", "iteration", "objectives", "inputs", "outputs",
+    "format", "amorctl_version", "run", "iteration", "objectives", "objective_set", "inputs", "outputs",
     "observation_layout", "action", "joint_names", "joint_ranges", "pd_gains", "torque_limits",
     "actuator_model", "default_pose", "control_hz", "physics_hz", "character", "model_sha256",
     "character_model", "termination", "context", "motions", "opset", "parity",
@@ -147,6 +147,8 @@ def character_spec(meta: dict[str, Any], mjcf_path: Path) -> CharacterSpec:
         keypoints={},
         physics_hz=int(meta["physics_hz"]),
         control_hz=int(meta["control_hz"]),
+        scale_profile=str(cm.get("scale_profile", "humanoid")),
+        objective_scales={str(k): dict(v) for k, v in cm.get("objective_scales", {}).items()},
     )
 
 

@@ -22,8 +22,6 @@ import shutil
 import tempfile
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import asdict
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -37,15 +35,14 @@ from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
 from amorctl.deploy.bundle import (
     CONTEXT_PARTS,
-    FORMAT,
     META_FILE,
     MOTIONS_FILE,
     ONNX_FILE,
     OPSET,
-    compiled_model_hash,
     open_session,
     part_element_names,
 )
+from amorctl.deploy.export_meta import bundle_metadata, motions_arrays
 from amorctl.train.rundir import RunDir
 
 #: largest |onnxruntime - torch| the export accepts (PD targets and raw actions, rad).
@@ -276,58 +273,6 @@ def reference_outputs(
 # ---------------------------------------------------------------------------- export
 
 
-def _plugin_location(spec: CharacterSpec) -> dict[str, str]:
-    """The entry-point module of the character's plugin package and the MJCF path inside it."""
-    mjcf = spec.mjcf_path.resolve()
-    import importlib.util
-
-    for ep in entry_points(group="amorctl"):
-        module = ep.value.split(":")[0]
-        try:
-            found = importlib.util.find_spec(module)
-        except (ImportError, ValueError):
-            continue
-        if found is None:
-            continue
-        base = (
-            Path(next(iter(found.submodule_search_locations)))
-            if found.submodule_search_locations
-            else Path(found.origin or ".").parent
-        ).resolve()
-        if mjcf.is_relative_to(base):
-            return {"plugin_module": module, "mjcf": str(mjcf.relative_to(base))}
-    raise AmorError(
-        f"{mjcf}: character {spec.name!r}'s model is not inside an installed amorctl plugin package"
-    )
-
-
-def _motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
-    """The run's motion library as the bundle's ``motions.npz`` arrays (docs/deploy.md)."""
-    from amorctl.motion.dataset import load_dataset
-
-    cfg = run.config.env
-    if cfg.dataset:
-        path = Path(cfg.dataset)
-    else:
-        from amorctl.motion.cache import default_dataset
-
-        path = default_dataset(cfg.character)
-    if not path.is_file():
-        raise AmorError(f"{path}: the run's motion dataset is not found")
-    lib = load_dataset(path)
-    out = {
-        "frames": np.asarray(lib.frames, dtype=np.float32),
-        "z": np.asarray(lib.z, dtype=np.float32),
-    }
-    for key in ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
-                "ee_pos", "ee_quat", "ee_lin_vel"):  # fmt: skip
-        out[key] = np.asarray(getattr(lib, key), dtype=np.float64)
-    out["clip_starts"] = lib.starts.astype(np.int64)
-    out["clip_lengths"] = lib.lengths.astype(np.int64)
-    out["clip_names"] = np.array([c.name for c in lib.clips], dtype=np.str_)
-    return out
-
-
 def _check_out(out: Path) -> None:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise AmorError(f"{out}: already exists; choose a new --out directory or remove it")
@@ -430,70 +375,15 @@ def export_bundle(
                 f"export parity check failed: onnxruntime differs from the torch policy by {delta:.3g} "
                 f"(tolerance {tolerance:g}) on {len(obs)} observations; nothing written"
             )
-        meta: dict[str, Any] = {
-            "format": FORMAT,
-            "amorctl_version": __version__,
-            "run": str(run.path),
-            "iteration": int(ckpt.iteration),
-            "objectives": names,
-            "inputs": inputs,
-            "outputs": outputs,
-            "observation_layout": {k: [int(a), int(b)] for k, (a, b) in layout.items()},
-            "action": {
-                "mode": action_mode,
-                "output": out_names[0],
-                "pd_target": (
-                    "q* = clamp(ref_frame[joint_pos] + action, joint_ranges)"
-                    if action_mode == "residual"
-                    else "q* = clamp(action, joint_ranges)"
-                    if action_mode == "absolute"
-                    else None
-                ),
-                "reference_columns": None
-                if ref is None
-                else {"input": "ref_frame", "start": ref[1], "stop": ref[2]},
-                "clamp": "joint_ranges" if low is not None else None,
-                "units": "rad" if joints else None,
-            },
-            "joint_names": joints,
-            "joint_ranges": []
-            if low is None
-            else [[float(a), float(b)] for a, b in zip(low, high, strict=True)],
-            "pd_gains": {"kp": [j.kp for j in spec.joints], "kd": [j.kd for j in spec.joints]}
-            if spec
-            else None,
-            "torque_limits": [j.torque_limit for j in spec.joints] if spec else [],
-            "actuator_model": asdict(spec.actuator) if spec else None,
-            "default_pose": [float(spec.standing_pose.get(j, 0.0)) for j in joints] if spec else [],
-            "control_hz": spec.control_hz if spec else None,
-            "physics_hz": spec.physics_hz if spec else None,
-            "character": spec.name if spec else None,
-            "model_sha256": compiled_model_hash(spec) if spec else None,
-            "character_model": (
-                {
-                    **_plugin_location(spec),
-                    "root_body": spec.root_body,
-                    "end_effectors": list(spec.end_effectors),
-                    "joint_groups": [j.group for j in spec.joints],
-                    "standing_height": spec.standing_height,
-                    "min_standing_height": spec.min_standing_height,
-                }
-                if spec
-                else None
-            ),
-            "termination": {"fall_height_drop": fall_drop} if spec else None,
-            "context": {
-                "inputs": [n for n in groups if n in CONTEXT_PARTS],
-                "future_frame_offsets": facts.future_offsets,
-                "next_frame": "context of the step from s_t is the reference frame t+1 and its latent",
-                "clip_end": "the reference restarts its clip at the first frame after the last",
-            },
-            "motions": None,
-            "opset": OPSET,
-            "parity": {"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
-        }
+        meta = bundle_metadata(
+            run=run, iteration=int(ckpt.iteration), objectives=names, inputs=inputs, outputs=outputs,
+            layout=layout, action_mode=action_mode, out_names=out_names, ref=ref, spec=spec,
+            fall_drop=fall_drop, context_inputs=[n for n in groups if n in CONTEXT_PARTS],
+            future_offsets=facts.future_offsets,
+            parity={"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
+        )  # fmt: skip
         if spec is not None:
-            arrays = _motions_arrays(run)
+            arrays = motions_arrays(run)
             if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
                 raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
             np.savez(tmp / MOTIONS_FILE, **arrays)

@@ -17,7 +17,9 @@ not installed (tested with torch made unimportable). One control tick (docs/depl
 4. the targets are clamped to the joint ranges, delayed by the randomized extra latency, and
    the character is stepped ``physics_hz / control_hz`` physics steps with its actuator model;
    pushes (a horizontal force on the root body) act; a fall (root below the reference's by the
-   fall drop) or a diverged simulation ends the episode.
+   fall drop) or a diverged simulation ends the episode;
+5. with ``rewards=True`` the bundle's objective set scores the step against the reference frame
+   it reached (:mod:`amorctl.deploy.runtime_rewards`, numpy kernels; loads that one plugin).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ class TickRecord:
     ``t`` time of the observation (s since the episode start), ``weights`` [m] in force,
     ``pd_target`` [J] sent this tick, ``joint_pos`` / ``joint_vel`` [J] after the step,
     ``ref_joint_pos`` [J] of the reference frame the step tracked, ``frame`` its library index,
-    ``qpos`` [nq] after the step, ``held`` whether the watchdog held the pose.
+    ``qpos`` [nq] after the step, ``held`` whether the watchdog held the pose, ``rewards`` [m]
+    the objective set's rewards of the step (None unless the runtime computes rewards).
     """
 
     t: float
@@ -73,6 +76,7 @@ class TickRecord:
     frame: int
     qpos: np.ndarray
     held: bool
+    rewards: np.ndarray | None = None
 
 
 class Logger(Protocol):
@@ -100,6 +104,7 @@ class EpisodeResult:
     input: dict[str, Any] | None = None
     dynamics: dict[str, Any] = field(default_factory=dict)
     records: list[TickRecord] = field(default_factory=list)
+    returns: dict[str, float] | None = None
 
     @property
     def survived(self) -> bool:
@@ -123,6 +128,7 @@ class EpisodeResult:
             "pushes": sum(e.kind == "push" for e in self.events),
             "input": self.input,
             "dynamics": self.dynamics,
+            "returns": self.returns,
         }
 
 
@@ -135,6 +141,8 @@ class Runtime:
         realtime: pace ticks to the wall clock and enforce the policy deadline.
         max_misses: consecutive deadline misses that latch the watchdog hold.
         logger: receives every tick and event (None: no log).
+        rewards: compute the objective set's rewards every tick (needs the bundle's objective-set
+            plugin installed; :mod:`amorctl.deploy.runtime_rewards`).
     """
 
     def __init__(
@@ -145,6 +153,7 @@ class Runtime:
         realtime: bool = False,
         max_misses: int = 3,
         logger: Logger | None = None,
+        rewards: bool = False,
     ) -> None:
         if bundle.spec is None or bundle.motions is None:
             raise AmorError(f"{bundle.path}: the bundle has no character or motions; the runtime needs both")
@@ -170,6 +179,11 @@ class Runtime:
         self.logger = logger
         self.policy: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] = bundle.evaluate
         self.clock: Callable[[], float] = time.perf_counter
+        self.reward_meter = None
+        if rewards:
+            from amorctl.deploy.runtime_rewards import load_reward_meter
+
+            self.reward_meter = load_reward_meter(bundle)
         self.sleep: Callable[[float], None] = time.sleep
 
     # --- one observation -----------------------------------------------------------------
@@ -222,6 +236,7 @@ class Runtime:
         self.ref_idx = self.clip_start
         pose = mot.joint_pos[self.clip_start].copy()
         self.target_prev, self.target_prev2 = pose.copy(), pose.copy()
+        self.joint_vel_prev = mot.joint_vel[self.clip_start].copy()
         self.pending = collections.deque([pose.copy()] * dyn.latency_steps, maxlen=dyn.latency_steps + 1)
         return dyn.to_dict()
 
@@ -267,6 +282,7 @@ class Runtime:
         records: list[TickRecord] = []
         policy_ms: list[float] = []
         errors, rates = [], []
+        reward_sum = np.zeros(self.m)
         motion_steps, misses, held_steps = 0, 0, 0
         latched, stale_now, diverged = False, False, False
         fell_at: float | None = None
@@ -346,10 +362,20 @@ class Runtime:
             if last_sent is not None:
                 rates.append(float(((target - last_sent) ** 2).sum()))
             last_sent = target
+            jv = self.sim.joint_vel()
+            fell = self.sim.root_height() < self.motions.root_pos[reached, 2] - self.fall_drop
+            r = None
+            if self.reward_meter is not None:
+                r = self.reward_meter(
+                    self.sim.frame(), int(reached), self.sim.torque, target, self.target_prev,
+                    self.target_prev2, (jv - self.joint_vel_prev) / self.dt, alive=not fell, diverged=div,
+                )  # fmt: skip
+                reward_sum += r
+            self.joint_vel_prev = jv
             self.target_prev2, self.target_prev = self.target_prev, target
             rec = TickRecord(t=t_now, weights=np.asarray(w, dtype=np.float64).copy(), pd_target=target.copy(),
-                             joint_pos=jp, joint_vel=self.sim.joint_vel(), ref_joint_pos=ref_jp.copy(),
-                             frame=int(reached), qpos=self.sim.qpos, held=hold)  # fmt: skip
+                             joint_pos=jp, joint_vel=jv, ref_joint_pos=ref_jp.copy(),
+                             frame=int(reached), qpos=self.sim.qpos, held=hold, rewards=r)  # fmt: skip
             if record:
                 records.append(rec)
             if self.logger is not None:
@@ -359,7 +385,6 @@ class Runtime:
                 self.ref_idx = reached
                 if reached >= self.clip_end - 1:  # the clip ended: the reference starts it again
                     self.ref_idx = self.clip_start
-            fell = self.sim.root_height() < self.motions.root_pos[reached, 2] - self.fall_drop
             if div or fell:
                 emit(Event(t_now + self.dt, "diverged" if div else "fell", f"frame {reached}"))
                 diverged |= div
@@ -385,4 +410,7 @@ class Runtime:
             input=None if live is None else live.stats.to_dict(),
             dynamics=dynamics,
             records=records,
+            returns=None
+            if self.reward_meter is None
+            else dict(zip(self.names, reward_sum.tolist(), strict=True)),
         )

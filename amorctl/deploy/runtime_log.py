@@ -3,10 +3,11 @@
 Same topics and schemas as :mod:`amorctl.outputs.mcap_log` (``/tf`` foxglove.FrameTransforms of
 the character and of the reference ``ref/<body>``, ``/character`` foxglove.SceneUpdate once,
 ``/joint_states`` and ``/reference/joint_states``, ``/weights`` with one number per objective),
-plus ``/targets`` (the PD targets sent, JSON name/position), ``/tracking`` (per-tick joint error
-and whether the watchdog held) and ``/watchdog`` (every event: stale input, deadline misses,
-rejected messages, pushes, falls). Per-objective rewards are not logged: the objective set is a
-plugin the torch-free runtime does not load; ``/tracking`` carries the joint error instead.
+``/rewards`` (``amorctl.Rewards``: t and one number per objective name, in the bundle's order; when
+the runtime computes rewards, :mod:`amorctl.deploy.runtime_rewards`), plus ``/targets`` (the PD
+targets sent, JSON name/position), ``/tracking`` (per-tick joint error and whether the watchdog
+held) and ``/watchdog`` (every event: stale input, deadline misses, rejected messages, pushes,
+falls).
 Needs ``foxglove-sdk`` (imported when a log is opened; no torch). Written atomically: the file
 appears complete when the run ends, or not at all.
 """
@@ -27,6 +28,7 @@ from amorctl.outputs.mcap_log import (
     REF_PREFIX,
     TOPIC_JOINTS,
     TOPIC_REF_JOINTS,
+    TOPIC_REWARDS,
     TOPIC_SCENE,
     TOPIC_TF,
     TOPIC_WEIGHTS,
@@ -110,6 +112,11 @@ class McapLogger:
         self.w_ch = foxglove.Channel(
             TOPIC_WEIGHTS, schema=_named_schema("amorctl.Weights", self.names), context=ctx
         )
+        self.rewards_ch = None
+        if getattr(self.rt, "reward_meter", None) is not None:
+            self.rewards_ch = foxglove.Channel(
+                TOPIC_REWARDS, schema=_named_schema("amorctl.Rewards", self.names), context=ctx
+            )
         self.track_ch = foxglove.Channel(
             TOPIC_TRACKING,
             schema={"title": "amorctl.Tracking", "type": "object",
@@ -175,6 +182,10 @@ class McapLogger:
             {"name": self.joints, "position": rec.pd_target.tolist(), "velocity": []}, log_time=lt
         )
         self.w_ch.log({"t": t, **dict(zip(self.names, rec.weights.tolist(), strict=True))}, log_time=lt)
+        if self.rewards_ch is not None and rec.rewards is not None:
+            self.rewards_ch.log(
+                {"t": t, **dict(zip(self.names, rec.rewards.tolist(), strict=True))}, log_time=lt
+            )
         err = float(np.degrees(np.abs(rec.joint_pos - rec.ref_joint_pos).mean()))
         self.track_ch.log({"t": t, "joint_error_deg": err, "held": bool(rec.held)}, log_time=lt)
 

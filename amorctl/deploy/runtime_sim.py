@@ -3,11 +3,14 @@
 It reproduces what training simulated (:class:`amorctl.sim.batch_sim.BatchSim`) for one env with
 a plain ``mj_step`` loop, the way a robot-side simulator would: the same compiled model and
 sensors (:func:`~amorctl.sim.batch_sim.build_model`), the same actuator model (PD characters:
-MuJoCo position actuators holding the target for all substeps; servo characters:
-:func:`~amorctl.sim.actuators.servo_torque` on the command delayed by
-:class:`~amorctl.sim.actuators.CommandDelay`, computed every physics step), the same solver warm
-start between calls, the same end-effector readings (sensors of the last substep), so with
-nominal dynamics it follows ``amorctl tune``'s trajectory. Per episode it applies a
+MuJoCo position actuators holding the target for all substeps; servo characters: training's
+reference servo path, :func:`~amorctl.sim.actuators.servo_torque` on the command delayed by
+:class:`~amorctl.sim.actuators.CommandDelay`, computed every physics step, as a motor driver
+would; it agrees with training's native MuJoCo servo within the 1e-5 rad the tests state),
+amorctl's sensors looked up by name (a model's own sensors stay where they are), the same solver
+warm start between calls, the same end-effector readings (sensors of the last substep), so with
+nominal dynamics it follows ``amorctl tune``'s trajectory. The joint torques of every substep are
+kept (``torque`` [S, J]) for the ``smooth`` objective. Per episode it applies a
 :class:`~amorctl.deploy.randomize.Sample` to a copy of the model (friction, link masses and
 centres of mass, armature, PD gains, motor strength) and applies pushes (a horizontal force on
 the root body for a number of physics steps, through ``xfrc_applied``).
@@ -29,7 +32,8 @@ from amorctl.core.specs import CharacterSpec
 from amorctl.deploy.bundle import Motions
 from amorctl.deploy.randomize import Sample
 from amorctl.sim.actuators import CommandDelay, servo_torque
-from amorctl.sim.batch_sim import MAX_QVEL, build_model
+from amorctl.sim.batch_sim import MAX_QVEL, _joint_actuator, build_model
+from amorctl.sim.prepare import sensor_addresses
 
 #: damping added while the watchdog holds a pose, as a fraction of each joint's kp (seconds).
 HOLD_DAMPING = 0.1
@@ -46,7 +50,9 @@ class CharacterSim:
     def __init__(self, spec: CharacterSpec, motions: Motions) -> None:
         self.spec = spec
         self.motions = motions
-        self.base_model = build_model(spec)
+        # servo characters: the numpy servo between single physics steps (training's reference
+        # servo path), so the randomized gains, strength and hold damping apply per step
+        self.base_model = build_model(spec, "python")
         m = self.base_model
         root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, spec.root_body)
         free = int(m.body_jntadr[root])
@@ -54,9 +60,10 @@ class CharacterSim:
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in spec.joint_names()]
         self.joint_qpos = m.jnt_qposadr[jids].astype(np.int64)
         self.joint_dof = m.jnt_dofadr[jids].astype(np.int64)
-        self.actuators = np.array(
-            [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, j) for j in spec.joint_names()]
-        )
+        # as training finds them: the actuator driving each joint, amorctl's sensors by name (a
+        # model with its own sensors, e.g. IMUs, keeps them at their own addresses)
+        self.actuators = np.array([_joint_actuator(m, int(j)) for j in jids])
+        self.sensors = sensor_addresses(m, spec)
         self.gear = m.actuator_gear[self.actuators, 0].copy()
         self.servo = spec.actuator.kind == "servo"
         self.substeps = spec.substeps
@@ -68,6 +75,8 @@ class CharacterSim:
         self.root_body = int(root)
         self.push_force = np.zeros(2)
         self.push_steps = 0
+        #: [S, J] joint torques of every physics substep of the last control step, N·m
+        self.torque = np.zeros((self.substeps, self.num_joints))
 
     # --- episodes ---------------------------------------------------------------------------
 
@@ -103,6 +112,7 @@ class CharacterSim:
         d.qpos[self.joint_qpos] = mot.joint_pos[frame]
         d.qvel[self.joint_dof] = mot.joint_vel[frame]
         self.warmstart = np.zeros(m.nv)
+        self.torque = np.zeros((self.substeps, self.num_joints))
         self.push_steps = 0
         self.ee_pos = mot.ee_pos[frame].copy()
         self.ee_quat = mot.ee_quat[frame].copy()
@@ -134,23 +144,25 @@ class CharacterSim:
                     qv_prev = d.qvel.copy()
                 self._apply_push()
                 mujoco.mj_step(m, d)
+                self.torque[sub] = d.sensordata[self.sensors.torque] * self.gear
             if hold:
                 m.actuator_biasprm[a, 2] += extra_kd
             self.warmstart = (d.qvel - qv_prev) / dt
         else:
-            for _ in range(self.substeps):
+            for sub in range(self.substeps):
                 delayed = self.delay.push(target)
                 q, qd = d.qpos[self.joint_qpos][None], d.qvel[self.joint_dof][None]
                 tau = servo_torque(
                     delayed, q, qd, self.kp, self.kd + extra_kd, self.torque_limit, self.no_load_speed
                 )
+                self.torque[sub] = tau[0]
                 d.ctrl[self.actuators] = tau[0] / self.gear
                 qv_prev = d.qvel.copy()
                 d.qacc_warmstart[:] = self.warmstart
                 self._apply_push()
                 mujoco.mj_step(m, d)
                 self.warmstart = (d.qvel - qv_prev) / dt
-        sens = d.sensordata[: self.num_ee * 10].reshape(self.num_ee, 10)
+        sens = d.sensordata[self.sensors.ee]  # [E, 10]
         self.ee_pos, self.ee_quat, self.ee_lin_vel = (
             sens[:, 0:3].copy(),
             sens[:, 3:7].copy(),

@@ -6,6 +6,7 @@ from typing import Any
 
 from amorctl.core.config import TrainConfig
 from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weight_sampling import WeightSampler
 from amorctl.core.weights import parse_weights
 from amorctl.registry import get_registry
 
@@ -37,6 +38,10 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
     else:
         if backend is None:
             backend = get_registry().backend(config.run.backend).make()
+        options: dict[str, Any] = {}
+        if not config.weights.plain:  # the [weights] levers (torch-cpu's tracking env; config checks it)
+            m = len(get_registry().objective_set(e.objective_set).objectives)
+            options["weight_sampler"] = weight_sampler(config, m)
         env = backend.make_env(
             character=e.character,
             dataset=e.dataset or None,
@@ -45,6 +50,7 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
             episode_seconds=e.episode_seconds,
             seed=seed,
             action_mode=e.action_mode,
+            **options,
         )
     if e.fixed_weights:
         from amorctl.envs.wrappers import FixedWeights
@@ -52,3 +58,9 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
         w = parse_weights(e.fixed_weights, env.reward_space.names, source="[env] fixed_weights")
         env = FixedWeights(env, w)
     return env
+
+
+def weight_sampler(config: TrainConfig, m: int) -> WeightSampler:
+    """The per-episode weight sampler of ``config``'s ``[weights]`` section for m objectives."""
+    w = config.weights
+    return WeightSampler(m, w.alpha, w.corner_fraction, w.edge_fraction, w.axis_fraction, w.adaptive_fraction)

@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from amorctl.core.env_random import Seed, env_random, is_per_env
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import RewardSpace
-from amorctl.core.weights import sample_dirichlet
 
 
 class MOGymVectorEnv:
@@ -75,7 +75,7 @@ class MOGymVectorEnv:
         self._low = np.asarray(first.action_space.low, dtype=np.float64).reshape(-1)
         self._high = np.asarray(first.action_space.high, dtype=np.float64).reshape(-1)
         self.seed = seed
-        self.rng = np.random.default_rng(seed)
+        self.rand = env_random(seed, num_envs)
         self._w = np.full((num_envs, m), 1.0 / m, dtype=np.float32)
         self._obs = np.zeros((num_envs, self.base_obs_dim), dtype=np.float32)
 
@@ -87,14 +87,17 @@ class MOGymVectorEnv:
     def _full(self, base: np.ndarray, w: np.ndarray) -> np.ndarray:
         return np.concatenate([base, w], axis=1).astype(np.float32)
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset every copy (copy i with ``seed + i``) and draw new weights."""
+    def reset(self, seed: Seed = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every copy (copy i with ``seed + i``, or with ``seed[i]`` given one seed per copy,
+        which then also draws its weights from its own generator) and draw new weights."""
         seed = self.seed if seed is None else seed
-        self.rng = np.random.default_rng(seed)
+        self.rand = env_random(seed, self.num_envs)
+        per_env = is_per_env(seed)
+        seeds = [int(np.asarray(seed)[i]) if per_env else int(seed) + i for i in range(self.num_envs)]  # type: ignore[arg-type]
         for i, env in enumerate(self.envs):
-            obs, _ = env.reset(seed=seed + i)
+            obs, _ = env.reset(seed=seeds[i])
             self._obs[i] = np.asarray(obs, dtype=np.float32).reshape(-1)
-        self._w = sample_dirichlet(self.rng, self.num_envs, self.num_objectives)
+        self._w = self.rand.dirichlet(np.arange(self.num_envs), self.num_objectives)
         return self._full(self._obs, self._w), {}
 
     def step(
@@ -126,7 +129,7 @@ class MOGymVectorEnv:
         final_obs = self._full(final, self._w)
         ended = terminated | truncated
         if ended.any():
-            self._w[ended] = sample_dirichlet(self.rng, int(ended.sum()), self.num_objectives)
+            self._w[ended] = self.rand.dirichlet(np.flatnonzero(ended), self.num_objectives)
         return self._full(self._obs, self._w), rewards, terminated, truncated, {"final_obs": final_obs}
 
     def close(self) -> None:

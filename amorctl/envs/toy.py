@@ -8,7 +8,8 @@ well on both, so a trained MOPPO policy's action sign visibly flips with ``w``.
 
 Episodes end by a random hazard (terminated, 1% per step, independent of the action) or at the
 time limit (truncated). It is fully seeded and snapshotable (:class:`amorctl.core.contracts.SnapshotEnv`),
-so runs on it resume bit-exactly. Used by tests and as ``[env] kind = "toy"``.
+so runs on it resume bit-exactly; ``reset(seed=[s_0, ...])`` gives every env its own generator
+(:mod:`amorctl.core.env_random`). Used by tests and as ``[env] kind = "toy"``.
 
 :class:`ToySmoothEnv` (``[env] kind = "toy-smooth"``) is a second toy task whose objectives are
 ``track`` and ``smooth`` (an action-rate penalty), for tests of the ``smooth`` trade-off.
@@ -22,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from amorctl.core.contracts import Snapshot
+from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.vecenv import RewardSpace
-from amorctl.core.weights import sample_dirichlet
 
 TOY_REWARD_SPACE = RewardSpace(
     names=("right", "left"),
@@ -38,7 +39,8 @@ TOY_REWARD_SPACE = RewardSpace(
 
 class _ToyEnv(ABC):
     """What both toy envs share: N copies of a 1-D task whose state is a target ``s`` and one more
-    per-env number (``second``), a step counter, the episode weights, and a seeded generator.
+    per-env number (``second``), a step counter, the episode weights, and the seeded draws
+    (``rand``: one generator for the batch, or one per env after ``reset`` with per-env seeds).
 
     Subclasses set ``second`` (the attribute name), ``reward_space`` and implement ``_start_task``
     (new target for the envs in a mask) and ``_transition(a) -> rewards [N, 2]``.
@@ -53,7 +55,8 @@ class _ToyEnv(ABC):
         self.num_envs = num_envs
         self.max_steps = max_steps
         self.hazard = hazard
-        self.rng = np.random.default_rng(seed)
+        self.rand: BatchRandom | PerEnvRandom = env_random(seed, num_envs)
+        self.all_ids = np.arange(num_envs)
         self.s = np.zeros(num_envs)
         setattr(self, self.second, np.zeros(num_envs))
         self.t = np.zeros(num_envs, dtype=np.int64)
@@ -73,12 +76,13 @@ class _ToyEnv(ABC):
     def _start(self, mask: np.ndarray) -> None:
         self._start_task(mask)
         self.t[mask] = 0
-        self._w[mask] = sample_dirichlet(self.rng, int(mask.sum()), 2)
+        self._w[mask] = self.rand.dirichlet(np.flatnonzero(mask), 2)
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start every env anew (reseeding the env's generator when ``seed`` is given)."""
+    def reset(self, seed: Seed = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start every env anew, reseeding when ``seed`` is given: one int for the batch's
+        generator, or [N] ints, one generator per env."""
         if seed is not None:
-            self.rng = np.random.default_rng(seed)
+            self.rand = env_random(seed, self.num_envs)
         self._start(np.ones(self.num_envs, dtype=bool))
         return self._obs(), {}
 
@@ -90,7 +94,7 @@ class _ToyEnv(ABC):
         a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs), -lim, lim)
         rewards = self._transition(a).astype(np.float32)
         self.t += 1
-        terminated = self.rng.random(self.num_envs) < self.hazard
+        terminated = self.rand.random(self.all_ids) < self.hazard
         truncated = (self.t >= self.max_steps) & ~terminated
         final_obs = self._obs()
         ended = terminated | truncated
@@ -101,12 +105,11 @@ class _ToyEnv(ABC):
     def get_state(self) -> Snapshot:
         """Everything the next step depends on: generator state, s, the second number, t, w."""
         arrays = {"s": self.s, self.second: getattr(self, self.second), "t": self.t, "w": self._w}
-        return Snapshot({k: v.copy() for k, v in arrays.items()}, {"rng": self.rng.bit_generator.state})
+        return Snapshot({k: v.copy() for k, v in arrays.items()}, {"rng": self.rand.state()})
 
     def set_state(self, state: Snapshot) -> None:
         """Restore :meth:`get_state`."""
-        self.rng = np.random.default_rng()
-        self.rng.bit_generator.state = state.meta["rng"]
+        self.rand = restore_random(state.meta["rng"])
         self.s = state.arrays["s"].copy()
         setattr(self, self.second, state.arrays[self.second].copy())
         self.t = state.arrays["t"].copy()
@@ -131,14 +134,14 @@ class ToyTradeoffEnv(_ToyEnv):
         self._init_common(num_envs, max_steps, hazard, seed)
 
     def _start_task(self, mask: np.ndarray) -> None:
-        self.s[mask] = self.rng.uniform(-0.5, 0.5, size=int(mask.sum()))
+        self.s[mask] = self.rand.uniform(np.flatnonzero(mask), -0.5, 0.5)
         self.s_prev[mask] = self.s[mask]
 
     def _transition(self, a: np.ndarray) -> np.ndarray:
         targets = np.stack([1.0 + self.s, -1.0 + self.s], axis=1)
         rewards = np.exp(-((a[:, None] - targets) ** 2))
         self.s_prev = self.s.copy()
-        self.s = np.clip(0.95 * self.s + 0.05 * self.rng.normal(size=self.num_envs), -1.0, 1.0)
+        self.s = np.clip(0.95 * self.s + 0.05 * self.rand.normal(self.all_ids), -1.0, 1.0)
         return rewards
 
 
@@ -190,16 +193,16 @@ class ToySmoothEnv(_ToyEnv):
         self._init_common(num_envs, max_steps, hazard, seed)
 
     def _start_task(self, mask: np.ndarray) -> None:
-        k = int(mask.sum())
-        sign = np.where(self.rng.random(k) < 0.5, -1.0, 1.0)
-        self.s[mask] = sign * self.rng.uniform(0.25, 1.0, size=k)
+        ids = np.flatnonzero(mask)
+        sign = np.where(self.rand.random(ids) < 0.5, -1.0, 1.0)
+        self.s[mask] = sign * self.rand.uniform(ids, 0.25, 1.0)
         self.a_prev[mask] = 0.0
 
     def _transition(self, a: np.ndarray) -> np.ndarray:
         track = np.exp(-(((a - self.s) / self.width) ** 2))
         smooth = -((a - self.a_prev) ** 2)
         self.a_prev = a
-        jumps = self.rng.random(self.num_envs) < self.jump
-        levels = -np.sign(self.s) * self.rng.uniform(0.25, 1.0, size=self.num_envs)  # across 0
+        jumps = self.rand.random(self.all_ids) < self.jump
+        levels = -np.sign(self.s) * self.rand.uniform(self.all_ids, 0.25, 1.0)  # across 0
         self.s = np.where(jumps, levels, self.s)
         return np.stack([track, smooth], axis=1)

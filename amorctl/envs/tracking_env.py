@@ -20,11 +20,12 @@ from typing import Any, Literal
 import numpy as np
 
 from amorctl.core.contracts import Snapshot
+from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features, split_frame
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
-from amorctl.core.weights import sample_dirichlet
+from amorctl.core.weight_sampling import WeightSampler
 from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
@@ -55,7 +56,9 @@ class TrackingEnv:
             every clip with at least 2 frames); evaluation uses it to restrict to named motions.
         env_clips: [N] one clip index per env that env always tracks (a clip that ends restarts
             at its first frame); overrides ``clips``. Pareto sweeps give each env its motion.
-        seed: seed of RSI, clip switches and weight sampling (``reset(seed)`` reseeds).
+        seed: seed of RSI, clip switches and weight sampling (``reset(seed)`` reseeds; [N] seeds
+            give every env its own generator, :mod:`amorctl.core.env_random`).
+        weight_sampler: how episodes draw ``w`` (default Dirichlet(1); docs/moppo.md, Levers).
     """
 
     def __init__(
@@ -74,6 +77,7 @@ class TrackingEnv:
         clips: Sequence[int] | None = None,
         env_clips: np.ndarray | None = None,
         seed: int | None = 0,
+        weight_sampler: WeightSampler | None = None,
     ) -> None:
         registry = None
         if isinstance(character, str) or isinstance(objective_set, str):
@@ -99,6 +103,7 @@ class TrackingEnv:
             high=np.asarray(self.objectives.high, dtype=np.float64),
         )
         self.fixed_weights = None if fixed_weights is None else _check_weights(fixed_weights, m)
+        self.weight_sampler = weight_sampler or WeightSampler(m)
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
         self.action_mode = action_mode
@@ -167,7 +172,7 @@ class TrackingEnv:
     def _init_state(self, seed: int | None) -> None:
         """The per-env state arrays (zeros until the first reset) and the generator."""
         n, m, jn, e = self.num_envs, self.m, self.num_joints, self.num_ee
-        self._rng = np.random.default_rng(seed)
+        self._rand: BatchRandom | PerEnvRandom = env_random(seed, n)
         self.ref_idx = np.zeros(n, dtype=np.int64)  # frame the current state corresponds to
         self.clip_end = np.zeros(n, dtype=np.int64)  # exclusive end of that frame's clip
         self.clip_id = np.zeros(n, dtype=np.int64)
@@ -188,10 +193,11 @@ class TrackingEnv:
         """[N, m] float32: each env's current episode weights (a copy: ``step`` redraws in place)."""
         return self._weights.copy()
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start every env anew (RSI, fresh weights). Returns obs [N, obs_dim] float32, info."""
+    def reset(self, seed: Seed = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start every env anew (RSI, fresh weights), reseeding when ``seed`` is given (one int, or
+        [N] ints: one generator per env). Returns obs [N, obs_dim] float32, info."""
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self._rand = env_random(seed, self.num_envs)
         self.diverged_total = 0
         ids = np.arange(self.num_envs)
         self._reset_envs(ids)
@@ -319,12 +325,14 @@ class TrackingEnv:
         arrays = {name.lstrip("_"): getattr(self, name).copy() for name in self.SNAPSHOT_ARRAYS}
         arrays.update({f"sim/{k}": v for k, v in self.sim.snapshot().items()})
         meta = {
-            "rng": self._rng.bit_generator.state,
+            "rng": self._rand.state(),
             "diverged_total": int(self.diverged_total),
             "valid_clips": [int(c) for c in self.valid_clips],
             "env_clips": None if self.env_clips is None else [int(c) for c in self.env_clips],
             "from_start": self.from_start,
         }
+        if self.weight_sampler.adaptive:
+            meta["weight_sampler"] = self.weight_sampler.state()
         return Snapshot(arrays, meta)
 
     def set_state(self, state: Snapshot) -> None:
@@ -350,10 +358,10 @@ class TrackingEnv:
         self.sim.restore({k[len("sim/") :]: v for k, v in state.arrays.items() if k.startswith("sim/")})
         for name, value in restored.items():
             setattr(self, name, value)
-        rng = np.random.default_rng()
-        rng.bit_generator.state = meta["rng"]
-        self._rng = rng
+        self._rand = restore_random(meta["rng"])
         self.diverged_total = int(meta["diverged_total"])
+        if self.weight_sampler.adaptive:
+            self.weight_sampler.load_state(meta["weight_sampler"])
 
     # --- internals --------------------------------------------------------------------------------
 
@@ -362,9 +370,9 @@ class TrackingEnv:
         if self.env_clips is not None:
             clips = self.env_clips[ids]
         else:
-            clips = self.valid_clips[self._rng.integers(len(self.valid_clips), size=len(ids))]
+            clips = self.valid_clips[self._rand.integers(ids, len(self.valid_clips))]
         start, end = self.clip_starts[clips], self.clip_ends[clips]
-        offset = 0 if at_start else self._rng.integers(0, end - start - 1)
+        offset = 0 if at_start else self._rand.integers(ids, end - start - 1)
         self.clip_id[ids] = clips
         self.clip_end[ids] = end
         self.ref_idx[ids] = start + offset
@@ -388,7 +396,7 @@ class TrackingEnv:
         if self.fixed_weights is not None:
             self._weights[ids] = self.fixed_weights
         else:
-            self._weights[ids] = sample_dirichlet(self._rng, len(ids), self.m)
+            self._weights[ids] = self.weight_sampler.draw(self._rand, ids)
 
     def _sim_frames(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """[k, D] heading-frame features of the simulated state."""

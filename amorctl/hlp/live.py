@@ -4,7 +4,6 @@ HLP's current w_t beside the edited weights the policy sees."""
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,7 +13,7 @@ from amorctl.core.errors import AmorError
 from amorctl.hlp.edit import edit_weights
 from amorctl.hlp.run import LoadedHlp
 from amorctl.hlp.tune import check_hlp_for
-from amorctl.tune.live import SLIDER_MAX, LiveApp, LiveSession
+from amorctl.tune.live import SLIDER_MAX, LiveApp, LiveSession, serve_live
 from amorctl.tune.session import PinnedMotion
 
 #: a slider at SLIDER_MAX multiplies by this; the middle of the slider is x1
@@ -95,13 +94,5 @@ def serve_hlp_live(
     port: int = 8080,
     announce: Callable[[str], None] | None = None,
 ) -> None:
-    """Serve ``session`` on the live page until interrupted (Ctrl-C)."""
-    try:
-        app = HlpLiveApp(session, host=host, port=port)
-    except OSError as exc:
-        raise AmorError(f"cannot serve the live page on {host}:{port}: {exc}") from None
-    if announce is not None:
-        announce(app.url)
-    app.start()
-    with contextlib.suppress(KeyboardInterrupt):
-        app.wait()
+    """Serve ``session`` on the HLP's live page until interrupted (Ctrl-C)."""
+    serve_live(session, host=host, port=port, announce=announce, app_class=HlpLiveApp)

@@ -2,16 +2,20 @@
 
 One :class:`BatchSim` owns the batch state ``[N, nstate]`` (MuJoCo's ``mjSTATE_FULLPHYSICS``),
 a per-env solver warm start ``[N, nv]`` and one reused :class:`mujoco.rollout.Rollout` pool. A
-control step is one ``rollout`` call of ``substeps`` physics steps for PD characters (MuJoCo's
-position actuators hold the target through the substeps), or ``substeps`` calls of one physics
-step for servo characters, whose motor torques are computed between the calls by the vectorized
-servo model (``servo_torque`` on the command delayed by ``CommandDelay``). Why the rollout pool
-and not per-env ``MjData`` on Python threads: docs/environment.md. :meth:`BatchSim.snapshot` /
-:meth:`BatchSim.restore` save and restore all of it as plain arrays (checkpoints).
+control step is one ``rollout`` call of ``substeps`` physics steps: MuJoCo's actuators hold the
+control step's target through the substeps, PD characters with ``position`` actuators, servo
+characters with the native servo (``dcmotor`` actuators on a delayed command,
+:func:`amorctl.sim.actuators.native_servo`; the delay's history is part of the state). The
+reference servo path (``servo_model="python"``) instead runs ``substeps`` calls of one physics
+step and computes the motor torques between them in numpy (``servo_torque`` on the command
+delayed by ``CommandDelay``); it is kept to check the native one and to measure its gain. Why the
+rollout pool and not per-env ``MjData`` on Python threads: docs/environment.md.
+:meth:`BatchSim.snapshot` / :meth:`BatchSim.restore` save and restore all of it as plain arrays
+(checkpoints).
 
 Body poses come from frame sensors added to the model at load time (``framepos``,
-``framequat``, ``framelinvel`` on each end effector's body frame), joint torques of PD characters
-from ``actuatorfrc`` sensors. MuJoCo computes sensors at the start of a physics step, so the
+``framequat``, ``framelinvel`` on each end effector's body frame), joint torques from
+``actuatorfrc`` sensors. MuJoCo computes sensors at the start of a physics step, so the
 end-effector readings of a control step describe the state one physics substep (4 ms at 250 Hz)
 before the final ``qpos``/``qvel``.
 """
@@ -19,6 +23,7 @@ before the final ``qpos``/``qvel``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import mujoco
 import mujoco.rollout
@@ -27,8 +32,10 @@ import numpy as np
 from amorctl.core.errors import AmorError
 from amorctl.core.geometry import quat_conj, quat_rotate
 from amorctl.core.specs import CharacterSpec
+from amorctl.sim.actuators import CommandDelay, native_servo, servo_torque
+from amorctl.sim.cpus import available_cpus
 from amorctl.sim.model import load_model
-from amorctl.sim.prepare import sensor_addresses
+from amorctl.sim.prepare import sensor_addresses, torque_sensor_name
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 CTRL_SPEC = mujoco.mjtState.mjSTATE_CTRL
@@ -36,16 +43,39 @@ CTRL_SPEC = mujoco.mjtState.mjSTATE_CTRL
 #: |q̇| above this (rad/s or m/s) counts as a diverged simulation.
 MAX_QVEL = 1.0e3
 
+ServoModel = Literal["native", "python"]
 
-def build_model(character: CharacterSpec) -> mujoco.MjModel:
+
+def build_model(character: CharacterSpec, servo_model: ServoModel = "native") -> mujoco.MjModel:
     """The character's model, compiled by :func:`amorctl.sim.model.load_model` with the sensors the
     tracking env reads (:func:`amorctl.sim.prepare.add_tracking_sensors`; found by name with
-    :func:`~amorctl.sim.prepare.sensor_addresses`). The timestep is ``1 / physics_hz``.
+    :func:`~amorctl.sim.prepare.sensor_addresses`). The timestep is ``1 / physics_hz``. Servo
+    characters get the native servo actuators (:func:`amorctl.sim.actuators.native_servo`) unless
+    ``servo_model="python"`` (motors whose ``ctrl`` is the torque).
 
     Raises:
         AmorError: the file is missing, a named body or actuator does not exist, or MuJoCo rejects it.
     """
-    return load_model(character, tracking_sensors=True)
+    native = character.actuator.kind == "servo" and servo_model == "native"
+    return load_model(character, tracking_sensors=True, edit=native_servo if native else None)
+
+
+def _history_columns(model: mujoco.MjModel, actuators: np.ndarray, nstate: int) -> np.ndarray:
+    """``[J, k]`` columns of the state vector holding each actuator's ``k`` delayed commands.
+
+    Found by writing markers with ``mj_initCtrlHistory`` and reading the state back, so nothing
+    depends on how MuJoCo lays the history buffer out.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_resetData(model, data)
+    k = int(model.actuator_history[actuators[0], 0])
+    markers = 1.0e6 + np.arange(len(actuators) * k, dtype=np.float64).reshape(len(actuators), k)
+    for a, values in zip(actuators, markers, strict=True):
+        mujoco.mj_initCtrlHistory(model, data, int(a), None, values)
+    state = np.empty(nstate)
+    mujoco.mj_getState(model, data, state, STATE_SPEC)
+    cols = np.array([[int(np.flatnonzero(state == v)[0]) for v in row] for row in markers])
+    return cols
 
 
 def _id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str, what: str, character: str) -> int:
@@ -97,16 +127,26 @@ class BatchSim:
     Args:
         character: the character to simulate.
         num_envs: N.
-        nthread: threads of the rollout pool (the machine's cores).
+        nthread: threads of the rollout pool (default: the cores this process may use).
+        servo_model: servo characters only: ``"native"`` (MuJoCo computes the servo inside its
+            step) or ``"python"`` (the numpy reference between single physics steps).
     """
 
-    def __init__(self, character: CharacterSpec, num_envs: int, nthread: int = 2) -> None:
+    def __init__(
+        self,
+        character: CharacterSpec,
+        num_envs: int,
+        nthread: int | None = None,
+        servo_model: ServoModel = "native",
+    ) -> None:
         if num_envs < 1:
             raise AmorError(f"num_envs must be >= 1, got {num_envs}")
+        if servo_model not in ("native", "python"):
+            raise AmorError(f"servo_model must be 'native' or 'python', got {servo_model!r}")
         self.character = character
         self.num_envs = n = int(num_envs)
-        self.nthread = int(nthread)
-        self.model = m = build_model(character)
+        self.nthread = int(nthread) if nthread else available_cpus()
+        self.model = m = build_model(character, servo_model)
         self.substeps = character.substeps
         self.dt = float(m.opt.timestep)
         name = character.name
@@ -125,6 +165,8 @@ class BatchSim:
         self.num_joints = len(jids)
         self.num_ee = len(character.end_effectors)
         self.servo = character.actuator.kind == "servo"
+        #: numpy servo between single physics steps (the reference); False: all inside MuJoCo
+        self.python_servo = self.servo and servo_model == "python"
 
         # State layout of mjSTATE_FULLPHYSICS: time, qpos, qvel, then act/history/plugin/plastic.
         self.nstate = mujoco.mj_stateSize(m, STATE_SPEC)
@@ -137,8 +179,8 @@ class BatchSim:
         mujoco.mj_getState(m, data, self.template, STATE_SPEC)
         self.state = np.tile(self.template, (n, 1))
         self.warmstart = np.zeros((n, m.nv))
-        self.ctrl = np.zeros((n, self.substeps if not self.servo else 1, m.nu))
-        steps = 1 if self.servo else self.substeps
+        steps = 1 if self.python_servo else self.substeps
+        self.ctrl = np.zeros((n, steps, m.nu))
         self._out_state = np.empty((n, steps, self.nstate))
         self._out_sens = np.empty((n, steps, m.nsensordata))
         self._models = [m] * n
@@ -149,16 +191,25 @@ class BatchSim:
         self._chunk = max(1, min(8, n // (self.nthread * 16)))
         self.torque = np.zeros((n, self.substeps, self.num_joints))
 
-        if self.servo:
-            from amorctl.sim.actuators import CommandDelay, servo_torque
-
+        # Joint torques: actuatorfrc sensors (PD and native servo); the python servo records its own.
+        self.torque_adr = self.sensors.torque
+        self.history_cols = np.zeros((self.num_joints, 0), dtype=np.int64)
+        if self.servo and not self.python_servo:
+            ids = [
+                mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, torque_sensor_name(j))
+                for j in character.joint_names()
+            ]
+            self.torque_adr = m.sensor_adr[ids].astype(np.int64)
+            if character.actuator.latency_steps > 0:  # pending commands live in the state
+                self.history_cols = _history_columns(m, self.actuators, self.nstate)
+        if self.servo:  # [J] servo parameters (the python servo's inputs; informative otherwise)
             joints = character.joints
             self.kp = np.array([j.kp for j in joints])
             self.kd = np.array([j.kd for j in joints])
             self.torque_limit = np.array([j.torque_limit for j in joints])
             self.no_load_speed = character.actuator.no_load_speed
+        if self.python_servo:
             self.delay = CommandDelay(character.actuator.latency_steps, n, self.num_joints)
-            self.servo_torque = servo_torque
 
     # --- state access ---------------------------------------------------------------------------
 
@@ -222,9 +273,11 @@ class BatchSim:
         s[:, v0 + 3 : v0 + 6] = quat_rotate(quat_conj(root_quat), root_ang_vel)
         s[:, 1 + self.joint_qpos] = joint_pos
         s[:, self.s_qvel.start + self.joint_dof] = joint_vel
+        if self.history_cols.size:  # native servo: pending commands of reset envs = their pose
+            s[:, self.history_cols] = np.asarray(joint_pos)[:, :, None]
         self.state[env_ids] = s
         self.warmstart[env_ids] = 0.0
-        if self.servo:  # pending commands of reset envs become their initial pose
+        if self.python_servo:  # pending commands of reset envs become their initial pose
             mask = np.zeros(self.num_envs, dtype=bool)
             mask[env_ids] = True
             order = np.argsort(env_ids)
@@ -233,32 +286,38 @@ class BatchSim:
     # --- snapshots ------------------------------------------------------------------------------
 
     #: The arrays that carry over from one control step to the next (everything else BatchSim
-    #: holds is rewritten before it is read): the physics state, the solver warm start, the
-    #: controls; servo characters add the command delay's ``delay/buffer`` and ``delay/head``.
+    #: holds is rewritten before it is read): the physics state (with the native servo's pending
+    #: commands in its history), the solver warm start, the controls; the python servo adds its
+    #: command delay's ``delay/buffer`` and ``delay/head``.
     SNAPSHOT_ARRAYS = ("state", "warmstart", "ctrl")
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """Every env's simulation state as named arrays (copies), for checkpoints.
 
-        ``state`` [N, nstate] (``mjSTATE_FULLPHYSICS``: time, qpos, qvel, act, ...),
-        ``warmstart`` [N, nv], ``ctrl``, and for servo characters the pending commands
+        ``state`` [N, nstate] (``mjSTATE_FULLPHYSICS``: time, qpos, qvel, act, history, ...),
+        ``warmstart`` [N, nv], ``ctrl``, and for the python servo the pending commands
         ``delay/buffer`` [k + 1, N, J] and ``delay/head`` [1]. :meth:`restore` puts them back so
         the next :meth:`step` equals the one that followed the snapshot, bit for bit.
         """
         arrays = {name: getattr(self, name).copy() for name in self.SNAPSHOT_ARRAYS}
-        if self.servo:
+        if self.python_servo:
             arrays.update({f"delay/{k}": v for k, v in self.delay.snapshot().items()})
         return arrays
 
     def restore(self, arrays: dict[str, np.ndarray]) -> None:
-        """Restore :meth:`snapshot` (extra keys are ignored).
+        """Restore :meth:`snapshot` (extra keys are ignored). A native-servo simulation also takes
+        the python servo's snapshots (checkpoints written before the servo moved into MuJoCo): its
+        ``delay/*`` commands go into the state's history.
 
         Raises:
             AmorError: an array is missing or has another shape (another character or env count).
         """
+        arrays = dict(arrays)
+        if self.history_cols.size and "delay/buffer" in arrays:
+            arrays = self._from_python_servo(arrays)
         for name in self.SNAPSHOT_ARRAYS:
             _check_array(arrays, name, getattr(self, name).shape)
-        if self.servo:
+        if self.python_servo:
             delay = {k: _check_array(arrays, f"delay/{k}", v.shape) for k, v in self.delay.snapshot().items()}
             try:
                 self.delay.restore(delay)
@@ -267,6 +326,30 @@ class BatchSim:
         self.state[:] = arrays["state"]
         self.warmstart = np.array(arrays["warmstart"], dtype=np.float64)
         self.ctrl[:] = arrays["ctrl"]
+
+    def _from_python_servo(self, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """A python-servo snapshot as a native one: the state gains the history buffer (after
+        ``act``), filled from the delay ring; ``ctrl`` [N, 1, nu] of torques becomes the targets."""
+        m, k = self.model, self.history_cols.shape[1]
+        n, j = self.num_envs, self.num_joints
+        old = _check_array(arrays, "state", (n, self.nstate - m.nhistory))
+        buffer = _check_array(arrays, "delay/buffer", (k + 1, n, j))
+        head = int(np.asarray(arrays["delay/head"]).reshape(-1)[0]) % (k + 1)
+        pending = buffer[[(head + 1 + i) % (k + 1) for i in range(k)]]  # [k, N, J], oldest first
+        at = 1 + m.nq + m.nv + m.na
+        state = np.concatenate(
+            [old[:, :at], np.tile(self.template[at : at + m.nhistory], (n, 1)), old[:, at:]], 1
+        )
+        data = mujoco.MjData(m)
+        for e in range(n):  # timestamps follow each env's clock: let MuJoCo write the buffer
+            mujoco.mj_setState(m, data, state[e], STATE_SPEC)
+            times = data.time - self.dt * np.arange(k, 0, -1)
+            for jj, a in enumerate(self.actuators):
+                mujoco.mj_initCtrlHistory(m, data, int(a), times, np.ascontiguousarray(pending[:, e, jj]))
+            mujoco.mj_getState(m, data, state[e], STATE_SPEC)
+        ctrl = np.zeros_like(self.ctrl)
+        ctrl[:, :, self.actuators] = pending[-1][:, None, :]
+        return {**arrays, "state": state, "ctrl": ctrl}
 
     # --- stepping -------------------------------------------------------------------------------
 
@@ -288,7 +371,7 @@ class BatchSim:
     def step(self, pd_target: np.ndarray) -> StepOutput:
         """Advance every env by one control step toward PD targets [N, J] (rad)."""
         time0 = self.state[:, 0].copy()
-        if not self.servo:
+        if not self.python_servo:  # MuJoCo's actuators act in every substep: one pool call
             self.ctrl[:, :, self.actuators] = pd_target[:, None, :]
             self._rollout(self.substeps)
             out = self._out_state
@@ -298,11 +381,11 @@ class BatchSim:
             )
             self.warmstart = (qv_last - qv_prev) / self.dt
             self.state[:] = out[:, -1]
-            self.torque[:] = self._out_sens[:, :, self.sensors.torque] * self.gear
+            self.torque[:] = self._out_sens[:, :, self.torque_adr] * self.gear
         else:
             for sub in range(self.substeps):
                 target = self.delay.push(pd_target)  # the command of `latency_steps` ago
-                tau = self.servo_torque(
+                tau = servo_torque(
                     target, self.joint_pos(), self.joint_vel(), self.kp, self.kd, self.torque_limit,
                     self.no_load_speed,
                 )  # fmt: skip

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import fnmatch
 import hashlib
-import importlib.util
 import json
 import math
 import os
@@ -29,7 +28,16 @@ import numpy as np
 from amorctl import __version__
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
-from amorctl.core.specs import JOINT_GROUPS, ActuatorModel, CharacterSpec, JointGroup, JointSpec
+from amorctl.core.specs import (
+    JOINT_GROUPS,
+    ActuatorModel,
+    CharacterSpec,
+    JointGroup,
+    JointSpec,
+    ModelSource,
+    find_package_file,
+    resolve_model_source,
+)
 from amorctl.sim.geom_bottom import lowest_point
 
 CACHE_ENV = "AMORCTL_CACHE_DIR"
@@ -50,22 +58,13 @@ def plugin_cache_dir(plugin: str = "") -> Path:
 
 
 def package_file(package: str, *parts: str) -> Path:
-    """The path of a file shipped inside an installed package, found without importing it.
+    """The path of a file shipped inside an installed package, found without importing it (now;
+    :func:`~amorctl.core.specs.package_model` is the lazy form for ``CharacterSpec.mjcf_path``).
 
     Raises:
         AmorError: the package is not installed, or the file is not in it.
     """
-    try:
-        found = importlib.util.find_spec(package)
-    except (ImportError, ValueError):
-        found = None
-    if found is None or not found.submodule_search_locations:
-        raise AmorError(f"package {package!r} is not installed (pip install it): it holds {'/'.join(parts)}")
-    for root in found.submodule_search_locations:
-        path = Path(root).joinpath(*parts)
-        if path.exists():
-            return path
-    raise AmorError(f"package {package!r} has no file {'/'.join(parts)}")
+    return find_package_file(package, *parts)
 
 
 def _group_of(joint: str, groups: Mapping[str, JointGroup]) -> JointGroup | None:
@@ -210,7 +209,7 @@ def read_mjcf(path: Path, keyframe: str | None = "", cache: bool = True) -> dict
 
 
 def character_from_mjcf(
-    path: Path | str,
+    path: ModelSource,
     *,
     name: str,
     groups: Mapping[str, JointGroup],
@@ -233,7 +232,9 @@ def character_from_mjcf(
     """A CharacterSpec whose joints, gains, limits and standing pose come from the model file.
 
     Args:
-        path: the MJCF (see :func:`package_file` for models inside other packages).
+        path: the MJCF, or a lazy :data:`~amorctl.core.specs.ModelSource` (resolved now; see
+            :func:`~amorctl.core.specs.package_model` for models inside other packages, and
+            :class:`~amorctl.core.specs.LazyCharacter` to defer the whole call to first use).
         name: the character's name.
         groups: joint name or fnmatch pattern -> "upper" | "lower" | "feet"; exact names win, then
             the first matching pattern in order (e.g. ``{"*Hip*": "lower", "*": "upper"}``).
@@ -255,7 +256,7 @@ def character_from_mjcf(
         AmorError: naming the file and what is missing (ungrouped joints, a joint without gains or
             torque limit, an end effector or key point body the model lacks).
     """
-    path = Path(path)
+    path = resolve_model_source(path, name)
     info = read_mjcf(path, keyframe, cache=cache)
     joints: list[JointSpec] = []
     ungrouped, no_gain, no_limit = [], [], []

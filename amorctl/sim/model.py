@@ -10,6 +10,8 @@ actuators), so ``nq``, ``nv``, ``nu`` and every mass and inertia are the same wi
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import mujoco
 
 from amorctl.core.errors import AmorError
@@ -17,13 +19,19 @@ from amorctl.core.specs import CharacterSpec
 from amorctl.sim.prepare import prepare_spec
 
 
-def load_model(spec: CharacterSpec, tracking_sensors: bool = False) -> mujoco.MjModel:
+def load_model(
+    spec: CharacterSpec,
+    tracking_sensors: bool = False,
+    edit: Callable[[mujoco.MjSpec, CharacterSpec], None] | None = None,
+) -> mujoco.MjModel:
     """Compile ``spec.mjcf_path``; the timestep is set to ``1 / spec.physics_hz``.
 
     Args:
         spec: the character.
         tracking_sensors: also add amorctl's named end-effector and torque sensors
             (:func:`amorctl.sim.prepare.add_tracking_sensors`), as the batched simulation needs.
+        edit: a last edit of the prepared spec before it compiles (the batched simulation's
+            native servo actuators, :func:`amorctl.sim.actuators.native_servo`).
 
     Raises:
         AmorError: the file is missing, a named body, joint or actuator does not exist or does not
@@ -37,6 +45,9 @@ def load_model(spec: CharacterSpec, tracking_sensors: bool = False) -> mujoco.Mj
     except ValueError as exc:
         raise AmorError(f"{path}: MuJoCo could not parse it: {exc}") from None
     prepare_spec(mjspec, spec, path, sensors=tracking_sensors)
+    if edit is not None:
+        mjspec.option.timestep = 1.0 / spec.physics_hz  # history buffers are timed in physics steps
+        edit(mjspec, spec)
     try:
         model = mjspec.compile()
     except ValueError as exc:

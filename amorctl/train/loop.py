@@ -43,6 +43,7 @@ from amorctl.train.checkpoint import (
     prune_checkpoints,
     save_checkpoint,
 )
+from amorctl.train.episode_stats import EpisodeRecorder
 from amorctl.train.metrics import METRICS_FILE, TB_DIR, MetricsLog
 from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir, check_compatible, run_meta
 from amorctl.train.signals import stop_on_signals
@@ -207,6 +208,11 @@ def train_run(
             training diverged. A new run that fails before its first checkpoint leaves nothing.
     """
     run = RunDir(out)
+    if run.read_only:
+        raise AmorError(
+            f"{run.label}: pretrained runs are read-only and carry no optimizer state, so they "
+            "cannot be trained further; `amorctl runs list --pretrained` shows the command that trained it"
+        )
     world = distributed.current()
     if not world.is_main:  # other ranks stay quiet
         on_start = on_iteration = on_note = None
@@ -258,7 +264,10 @@ def _train(
     local = distributed.local_config(config, world)  # this rank's envs and seed
     with world.agreeing():
         env = make_env(local, backend)
-    trainer: Trainer = backend.make_trainer(env, local)
+    # the trainer steps the env through the recorder (per-family survival, weight coverage); a
+    # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
+    recorder = None if callable(getattr(type(env), "fused_rollout", None)) else EpisodeRecorder(env)
+    trainer: Trainer = backend.make_trainer(env if recorder is None else recorder, local)
     if getattr(trainer, "world_size", 1) != world.size:
         raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
     start = 0
@@ -306,6 +315,8 @@ def _train(
                 last = trainer.iteration()
                 iteration = trainer.iteration_count
                 last["wall_time_s"] = time.perf_counter() - began
+                if recorder is not None:
+                    last.update(recorder.metrics(world))
                 metrics_log.write(last)
                 if on_iteration is not None:
                     on_iteration(last, total, time.perf_counter() - began)

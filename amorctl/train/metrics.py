@@ -1,4 +1,10 @@
-"""A run's metrics: ``metrics.csv`` (one row per iteration) plus optional TensorBoard scalars."""
+"""A run's metrics: ``metrics.csv`` (one row per iteration) plus optional TensorBoard scalars.
+
+Columns (docs/train.md, "Metrics"): the trainer's (``loss/...``, ``return/<objective>``,
+``episode/survival``, ...), ``wall_time_s``, and from :mod:`amorctl.train.episode_stats`
+``survival/<clip family>`` and ``wcount/<simplex region>``. A resumed run keeps the columns its
+file started with.
+"""
 
 from __future__ import annotations
 
@@ -51,9 +57,21 @@ class MetricsLog:
             writer.writerow({k: repr(float(metrics.get(k, math.nan))) for k in self.columns})
         if self.tb is not None:
             for key, value in metrics.items():
-                if key != "iteration" and math.isfinite(value):
+                # the per-iteration weight histogram stays in the CSV (28 curves would bury the rest)
+                if key != "iteration" and math.isfinite(value) and not key.startswith("wcount/"):
                     self.tb.add_scalar(key, value, step)
 
     def close(self) -> None:
         if self.tb is not None:
             self.tb.close()
+
+
+def family_survival(metrics: dict[str, float], spec: str = ".0%") -> str:
+    """``walk 98%  walker 90%  backflip 0%`` from an iteration's ``survival/<family>`` metrics
+    (:mod:`amorctl.train.episode_stats`), in the order logged; ``""`` when there are none."""
+    parts = [
+        f"{key.split('/', 1)[1]} {'–' if not math.isfinite(v) else format(v, spec)}"
+        for key, v in metrics.items()
+        if key.startswith("survival/")
+    ]
+    return "  ".join(parts)

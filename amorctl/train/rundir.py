@@ -8,6 +8,8 @@
 
 Every command that opens a run (train --resume, pareto, evaluate, tune, hlp, deploy) does it
 through :class:`RunDir`, so a missing, half-written or mismatched run is reported in one place.
+``pretrained:<name>`` in place of a path opens a read-only run shipped with the package
+(:mod:`amorctl.train.pretrained`); commands write its outputs to :meth:`RunDir.output_dir`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
 from amorctl.registry import get_registry
+from amorctl.train import pretrained
 from amorctl.train.checkpoint import (
     Checkpoint,
     check_against_config,
@@ -44,14 +47,37 @@ class RunDir:
     """One training run's directory.
 
     Args:
-        path: the directory (it need not exist yet for a new run).
+        path: the directory (it need not exist yet for a new run), or ``pretrained:<name>``.
+
+    Raises:
+        AmorError: a ``pretrained:`` name that is not installed.
     """
 
     def __init__(self, path: str | Path) -> None:
+        #: the pretrained entry's name, or None for an ordinary run directory
+        self.pretrained: str | None = None
+        if pretrained.is_reference(path):
+            entry = pretrained.resolve(path)
+            self.pretrained, path = entry.name, entry.path
         self.path = Path(path)
 
     def __repr__(self) -> str:
-        return f"RunDir({str(self.path)!r})"
+        return f"RunDir({self.label!r})"
+
+    @property
+    def label(self) -> str:
+        """How to name the run to a user: ``pretrained:<name>`` or the directory."""
+        return f"{pretrained.PREFIX}{self.pretrained}" if self.pretrained else str(self.path)
+
+    @property
+    def read_only(self) -> bool:
+        """Pretrained runs are read-only: nothing may be written into them."""
+        return self.pretrained is not None
+
+    def output_dir(self, sub: str) -> Path:
+        """Default folder for a command's outputs: ``<run>/<sub>``, or ``./<name>/<sub>`` for a
+        read-only pretrained run."""
+        return pretrained.output_folder(self.pretrained, sub) if self.pretrained else self.path / sub
 
     # --- files --------------------------------------------------------------------------------
     @property
@@ -96,7 +122,12 @@ class RunDir:
         """The run's resolved config. Raises AmorError if there is none or it is invalid."""
         if not self.config_path.is_file():
             raise AmorError(f"{self.path}: no run to resume or open ({CONFIG_FILE} not found)")
-        return load_config(self.config_path)
+        cfg = load_config(self.config_path)
+        if self.pretrained and cfg.env.dataset and not Path(cfg.env.dataset).is_absolute():
+            # a pretrained entry carries its dataset: relative to the entry, wherever it is installed
+            env = dataclasses.replace(cfg.env, dataset=str(self.path / cfg.env.dataset))
+            cfg = dataclasses.replace(cfg, env=env)
+        return cfg
 
     # --- checkpoints --------------------------------------------------------------------------
     def checkpoints(self) -> list[tuple[int, Path]]:

@@ -418,10 +418,11 @@ def serve_live(
     host: str = "127.0.0.1",
     port: int = 8080,
     announce: Callable[[str], None] | None = None,
+    app_class: type[LiveApp] = LiveApp,
 ) -> None:
-    """Serve ``session`` on a live page until interrupted (Ctrl-C)."""
+    """Serve ``session`` on a live page (an ``app_class``, e.g. the HLP's) until interrupted (Ctrl-C)."""
     try:
-        app = LiveApp(session, host=host, port=port)
+        app = app_class(session, host=host, port=port)
     except OSError as exc:
         raise AmorError(f"cannot serve the live page on {host}:{port}: {exc}") from None
     if announce is not None:

@@ -46,8 +46,8 @@ class TorchCpuBackend:
         spec = get_registry().character(character)  # unknown names fail here, clearly
         library = _load_library(character, dataset)
         steps = max(1, round(episode_seconds * spec.control_hz))
-        if "nthread" not in options and _process_group_size() > 1:
-            options["nthread"] = _threads_per_local_rank()  # the node's cores shared among its ranks
+        if "nthread" not in options:  # the cores this process may use, shared among the node's ranks
+            options["nthread"] = _threads_per_local_rank()
         return TrackingEnv(
             spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
         )
@@ -82,13 +82,16 @@ def _process_group_size() -> int:
 
 
 def _threads_per_local_rank() -> int:
-    """MuJoCo rollout threads per rank: this machine's cores over the ranks on it (torchrun's
+    """MuJoCo rollout threads per rank: the cores this process may run on (its CPU affinity, so
+    ``taskset -c 1 amorctl train`` gets 1) over the ranks on this machine (torchrun's
     ``LOCAL_WORLD_SIZE``), at least one."""
+    from amorctl.sim.cpus import available_cpus
+
     try:
         local = max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     except ValueError:
         local = 1
-    return max(1, (os.cpu_count() or 1) // local)
+    return max(1, available_cpus() // local)
 
 
 def bf16_supported() -> bool:

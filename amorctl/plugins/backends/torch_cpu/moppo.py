@@ -1,4 +1,7 @@
-"""MOPPO (the AMOR paper, Section 4) on PyTorch, CPU. One file, read top to bottom.
+"""MOPPO (the AMOR paper, Section 4) on PyTorch, CPU. The algorithm reads top to bottom here;
+the rollout batch (``batch.py``), data-parallel collectives (``replicas.py``), metrics
+(``trainer_metrics.py``), checkpoint state (``trainer_state.py``) and the levers of docs/moppo.md
+(``return_scale.py``, ``weight_feedback.py``) live beside it.
 
 Per iteration:
 
@@ -25,6 +28,11 @@ the moments of all ranks' observations; metrics are reduced over ranks. This is 
 update on the union of the ranks' minibatches (up to float rounding). Without a process group
 none of it runs and the single-process arithmetic is unchanged.
 
+Levers (docs/moppo.md, off by default = the paper): ``[ppo] return_norm`` scales each objective's
+value error (and optionally its advantage) by running statistics; with an adaptive
+``[weights]`` sampler the env exposes as ``env.weight_sampler``, each finished episode's
+predicted and achieved scalarized returns are fed back to it.
+
 Shapes: T = ``num_steps``, N = envs, D = obs dim, A = action dim, m = objectives, B = T·N.
 bf16: network forward/backward run under CPU autocast; weights, the Gaussian log-probabilities,
 the ratio and all losses stay float32.
@@ -33,9 +41,7 @@ the ratio and all losses stay float32.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -44,8 +50,8 @@ from torch import nn
 
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
-from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
+from amorctl.plugins.backends.torch_cpu.batch import Batch
 from amorctl.plugins.backends.torch_cpu.gae import gae
 from amorctl.plugins.backends.torch_cpu.networks import (
     Actor,
@@ -53,97 +59,18 @@ from amorctl.plugins.backends.torch_cpu.networks import (
     RunningNormalizer,
     gaussian_entropy,
     gaussian_log_prob,
-    load_modules,
-    modules_to_arrays,
 )
+from amorctl.plugins.backends.torch_cpu.replicas import Replicas
+from amorctl.plugins.backends.torch_cpu.return_scale import ReturnScale
+from amorctl.plugins.backends.torch_cpu.trainer_metrics import local_metrics, reduced_metrics
+from amorctl.plugins.backends.torch_cpu.trainer_state import load_trainer_state, trainer_state
+from amorctl.plugins.backends.torch_cpu.weight_feedback import WeightFeedback
+
+__all__ = ["Batch", "MOPPOTrainer", "Replicas"]
 
 EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
 LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
 CHECK_EVERY = 10  # data-parallel: compare the ranks' parameters every this many iterations
-#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
-EPISODE_STATS = (
-    "ep_return",
-    "ep_scalar",
-    "ep_length",
-    "recent_return",
-    "recent_scalar",
-    "recent_length",
-    "recent_survived",
-)
-
-
-class Replicas:
-    """The ``torch.distributed`` default process group a data-parallel trainer averages over.
-
-    Every collective is timed (``seconds``), so the iteration's communication share is measured.
-    """
-
-    def __init__(self) -> None:
-        import torch.distributed as dist
-
-        self.dist = dist
-        self.rank = dist.get_rank()
-        self.size = dist.get_world_size()
-        self.seconds = 0.0
-
-    def _run(self, fn: Any, *args: Any, **kwargs: Any) -> None:
-        t0 = time.perf_counter()
-        try:
-            fn(*args, **kwargs)
-        except RuntimeError as exc:  # a peer died or timed out: one clear line, never a hang
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise AmorError(
-                f"rank {self.rank}/{self.size}: MOPPO {getattr(fn, '__name__', 'collective')} failed, "
-                f"another rank died or stopped answering: {first}",
-                exit_code=3,
-            ) from None
-        self.seconds += time.perf_counter() - t0
-
-    def sum_(self, tensor: torch.Tensor) -> torch.Tensor:
-        """All-reduce ``tensor`` in place (sum over ranks); returns it."""
-        self._run(self.dist.all_reduce, tensor, op=self.dist.ReduceOp.SUM)
-        return tensor
-
-    def broadcast_modules(self, modules: dict[str, nn.Module]) -> None:
-        """Overwrite every rank's parameters and buffers with rank 0's."""
-        for module in modules.values():
-            for tensor in module.state_dict().values():
-                self._run(self.dist.broadcast, tensor, src=0)
-
-    def check_identical(self, modules: dict[str, nn.Module], iteration: int) -> None:
-        """Raise AmorError unless every rank holds byte-identical parameters and buffers."""
-        digest = hashlib.sha256()
-        for module in modules.values():
-            for key, tensor in module.state_dict().items():
-                digest.update(key.encode() + tensor.detach().contiguous().numpy().tobytes())
-        words = torch.from_numpy(np.frombuffer(digest.digest(), dtype=np.int64).copy())
-        low, high = words.clone(), words.clone()
-        self._run(self.dist.all_reduce, low, op=self.dist.ReduceOp.MIN)
-        self._run(self.dist.all_reduce, high, op=self.dist.ReduceOp.MAX)
-        if not torch.equal(low, high):
-            raise AmorError(
-                f"data-parallel training: the ranks' parameters differ at iteration {iteration} "
-                "(non-deterministic kernels or a lost update); stopping instead of training on"
-            )
-
-
-@dataclass
-class Batch:
-    """One rollout, flattened to B = T·N samples (``rewards``/``values`` keep [T, N, m] views)."""
-
-    obs: torch.Tensor  # [B, D] raw observations (normalized inside the networks' call)
-    actions: torch.Tensor  # [B, A]
-    log_probs: torch.Tensor  # [B] log pi_old(a | s)
-    means: torch.Tensor  # [B, A] pi_old's action means (for the analytic KL)
-    values: torch.Tensor  # [B, m] V_old(s)
-    weights: torch.Tensor  # [B, m] each sample's episode weights
-    rewards: torch.Tensor  # [T, N, m]
-    next_values: torch.Tensor  # [T, N, m] V(s_{t+1}): next rollout value, or V(final_obs) if truncated
-    terminated: torch.Tensor  # [T, N] bool
-    truncated: torch.Tensor  # [T, N] bool
-    old_log_std: torch.Tensor  # [A]
-    advantages: torch.Tensor | None = None  # [B, m] per-objective GAE (set by compute_returns)
-    returns: torch.Tensor | None = None  # [B, m] value targets (set by compute_returns)
 
 
 class MOPPOTrainer:
@@ -194,6 +121,12 @@ class MOPPOTrainer:
         self.recent_survived = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
         self.recent_ptr = 0
         self.episodes = 0
+        # the levers (docs/moppo.md, Levers): per-objective return scaling, adaptive weight sampling
+        norm = ppo.return_norm
+        self.return_scale = None if norm == "off" else ReturnScale(m, advantage=norm == "value+advantage")
+        sampler = getattr(env, "weight_sampler", None)
+        adaptive = sampler is not None and bool(getattr(sampler, "adaptive", False))
+        self.feedback = WeightFeedback(sampler, n, ppo.gamma) if adaptive else None
 
     def reset_env(self, seed: int) -> None:
         """Restart every env episode with ``seed``; running episode sums start from zero."""
@@ -203,6 +136,8 @@ class MOPPOTrainer:
         self.ep_return = torch.zeros(n, m, dtype=torch.float64)
         self.ep_scalar = torch.zeros(n, dtype=torch.float64)
         self.ep_length = torch.zeros(n, dtype=torch.int64)
+        if self.feedback is not None:
+            self.feedback.reset(n)
         if self.replicas is not None:  # another world size restarts: one fresh noise stream per rank
             self.generator.manual_seed(seed)
 
@@ -290,6 +225,8 @@ class MOPPOTrainer:
                 _, final_values = self._forward(final)
                 next_val_buf[t][trunc_buf[t]] = final_values
             self._track_episodes(rew_buf[t], weights, term_buf[t], trunc_buf[t])
+            if self.feedback is not None:
+                self.feedback.step(weights, value, rew_buf[t], term_buf[t], trunc_buf[t], next_val_buf[t])
             self.obs = torch.tensor(obs, dtype=torch.float32)
             t_env += t2 - t1
             t_policy += time.perf_counter() - t2 + t1 - t0
@@ -352,6 +289,22 @@ class MOPPOTrainer:
             self.cfg.gae_lambda,
         )
         batch.advantages, batch.returns = advantages.reshape(T * N, m), returns.reshape(T * N, m)
+        if self.return_scale is not None:
+            self._update_return_scale(batch.returns, batch.advantages)
+
+    @torch.no_grad()
+    def _update_return_scale(self, returns: torch.Tensor, advantages: torch.Tensor) -> None:
+        """Fold the rollout's targets and advantages [B, m] into the return scale (data-parallel:
+        the moments of all ranks' samples, so every rank scales alike)."""
+        assert self.return_scale is not None
+        if self.replicas is None:
+            self.return_scale.update(returns, advantages)
+            return
+        r, a = returns.double(), advantages.double()
+        count = torch.tensor([float(r.shape[0])], dtype=torch.float64)
+        sums = self.replicas.sum_(torch.cat([count, r.sum(0), (r * r).sum(0), (a * a).sum(0)]))
+        mean, sq, adv_sq = (sums[1:] / sums[0]).reshape(3, self.num_objectives)
+        self.return_scale.update_moments(mean, sq, adv_sq)
 
     # ------------------------------------------------------------------ 3. update
     def minibatch_loss(self, batch: Batch, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -364,27 +317,24 @@ class MOPPOTrainer:
         log_ratio = log_prob - batch.log_probs[idx]
         ratio = torch.exp(log_ratio)
 
-        # scalarize the vector advantage with each sample's own weights, normalize per minibatch
-        adv = (batch.advantages[idx] * batch.weights[idx]).sum(-1)
-        if self.replicas is None:
-            adv = (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
-        else:  # the moments of the union of all ranks' minibatches
-            a = adv.detach().double()
-            n, total, squares = self.replicas.sum_(
-                torch.stack([torch.tensor(float(a.numel()), dtype=torch.float64), a.sum(), (a * a).sum()])
-            )
-            adv_mean = total / n
-            adv_std = torch.sqrt(torch.clamp(squares / n - adv_mean * adv_mean, min=0.0))
-            adv = (adv - adv_mean.float()) / (adv_std.float() + 1e-8)
+        adv = self.scalarized_advantage(batch, idx)
+        scale = self.return_scale
         clip = self.cfg.clip_coef
         policy_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
 
-        # value loss over all m objectives
+        # value loss over all m objectives (in units of each objective's return std when scaled)
         returns, old_values = batch.returns[idx], batch.values[idx]
-        value_err = (values - returns) ** 2
-        if self.cfg.clip_value_loss:
-            clipped = old_values + torch.clamp(values - old_values, -clip, clip)
-            value_err = torch.max(value_err, (clipped - returns) ** 2)
+        if scale is None:  # the paper's loss, in the objectives' own units
+            value_err = (values - returns) ** 2
+            if self.cfg.clip_value_loss:
+                clipped = old_values + torch.clamp(values - old_values, -clip, clip)
+                value_err = torch.max(value_err, (clipped - returns) ** 2)
+        else:
+            sigma = scale.return_std()  # [m]
+            value_err = ((values - returns) / sigma) ** 2
+            if self.cfg.clip_value_loss:
+                clipped = old_values + torch.clamp(values - old_values, -clip * sigma, clip * sigma)
+                value_err = torch.max(value_err, ((clipped - returns) / sigma) ** 2)
         value_loss = 0.5 * value_err.mean()
 
         entropy = gaussian_entropy(log_std)
@@ -412,6 +362,25 @@ class MOPPOTrainer:
                 "clip_fraction": ((ratio - 1).abs() > clip).float().mean(),
             }
         return loss, stats
+
+    def scalarized_advantage(self, batch: Batch, idx: torch.Tensor) -> torch.Tensor:
+        """The policy's advantage [k] of the samples ``idx``: each sample's vector advantage
+        scalarized with its own weights (``A·w``, or ``(A / s)·w`` with ``return_norm =
+        "value+advantage"``), then normalized with the minibatch's (all ranks') mean and std."""
+        assert batch.advantages is not None, "call compute_returns first"
+        vector_adv = batch.advantages[idx]
+        if self.return_scale is not None and self.return_scale.advantage:
+            vector_adv = vector_adv / self.return_scale.advantage_std()
+        adv = (vector_adv * batch.weights[idx]).sum(-1)
+        if self.replicas is None:
+            return (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
+        a = adv.detach().double()  # the moments of the union of all ranks' minibatches
+        n, total, squares = self.replicas.sum_(
+            torch.stack([torch.tensor(float(a.numel()), dtype=torch.float64), a.sum(), (a * a).sum()])
+        )
+        adv_mean = total / n
+        adv_std = torch.sqrt(torch.clamp(squares / n - adv_mean * adv_mean, min=0.0))
+        return (adv - adv_mean.float()) / (adv_std.float() + 1e-8)
 
     def minibatch_plan(self, size: int) -> list[torch.Tensor]:
         """The sample indices of every minibatch step of one update, in order (``num_epochs``
@@ -485,88 +454,17 @@ class MOPPOTrainer:
         self.iteration_count += 1
         if self.replicas is None:
             elapsed = time.perf_counter() - start
-            return self._metrics(batch, stats, times, elapsed)
+            return local_metrics(self, batch, stats, times, elapsed)
         if self.iteration_count % CHECK_EVERY == 0:
             self.replicas.check_identical(self._modules(), self.iteration_count)
-        metrics = self._metrics(batch, stats, times, time.perf_counter() - start)
-        metrics.update(self._reduced_metrics(batch))
+        metrics = local_metrics(self, batch, stats, times, time.perf_counter() - start)
+        metrics.update(reduced_metrics(self, batch))
         elapsed = time.perf_counter() - start
         metrics["time/iteration_s"] = elapsed
         metrics["env_steps_per_s"] = batch.obs.shape[0] * self.world_size / max(elapsed, 1e-9)
         metrics["time/comm_frac"] = (self.replicas.seconds - comm_before) / elapsed
         return metrics
 
-    @torch.no_grad()
-    def _reduced_metrics(self, batch: Batch) -> dict[str, float]:
-        """Data-parallel: episode statistics, mean rewards and explained variances over all ranks
-        (one all-reduce); each rank's window holds its own last ``EPISODE_WINDOW`` episodes."""
-        assert self.replicas is not None and batch.returns is not None
-        m = self.num_objectives
-        filled = ~torch.isnan(self.recent_length)
-        ret, val = batch.returns.double(), batch.values.double()
-        res = ret - val
-        parts = [
-            torch.tensor([float(filled.sum()), self.episodes, ret.shape[0]], dtype=torch.float64),
-            self.recent_return[filled].sum(0),  # [m]
-            torch.stack([self.recent_scalar[filled].sum(), self.recent_length[filled].sum()]),
-            self.recent_survived[filled].sum().reshape(1),
-            batch.rewards.double().sum(dim=(0, 1)),  # [m]
-            ret.sum(0),
-            (ret * ret).sum(0),
-            res.sum(0),
-            (res * res).sum(0),
-        ]
-        total = self.replicas.sum_(torch.cat(parts))
-        k, episodes, b = (float(v) for v in total[:3])
-        ep_ret, (ep_scalar, ep_len), ep_surv = total[3 : 3 + m], total[3 + m : 5 + m], float(total[5 + m])
-        rew, r1, r2, e1, e2 = total[6 + m :].reshape(5, m)
-        nan = float("nan")
-        out: dict[str, float] = {"episodes": episodes}
-        for i, name in enumerate(self.names):
-            out[f"return/{name}"] = float(ep_ret[i]) / k if k else nan
-            out[f"reward/{name}"] = float(rew[i]) / b
-            var_ret = float(r2[i]) / b - (float(r1[i]) / b) ** 2
-            var_res = float(e2[i]) / b - (float(e1[i]) / b) ** 2
-            out[f"explained_variance/{name}"] = 1 - var_res / var_ret if var_ret > 0 else nan
-        out["return/scalarized"] = float(ep_scalar) / k if k else nan
-        out["episode/length"] = float(ep_len) / k if k else nan
-        out["episode/survival"] = ep_surv / k if k else nan
-        return out
-
-    def _metrics(
-        self, batch: Batch, stats: dict[str, float], times: dict[str, float], elapsed: float
-    ) -> dict[str, float]:
-        metrics: dict[str, float] = {
-            "iteration": float(self.iteration_count),
-            "env_steps": float(self.env_steps),
-        }
-        metrics["env_steps_per_s"] = batch.obs.shape[0] / max(elapsed, 1e-9)
-        metrics["time/iteration_s"] = elapsed
-        metrics["time/env_frac"] = times["env"] / elapsed
-        metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
-        metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
-        metrics.update(stats)
-        metrics["learning_rate"] = self.learning_rate
-        metrics["action_std"] = float(torch.exp(self.actor.log_std.detach()).mean())
-        assert batch.returns is not None
-        filled = ~torch.isnan(self.recent_length)
-        has = bool(filled.any())
-        mean_reward = batch.rewards.mean(dim=(0, 1))
-        for i, name in enumerate(self.names):
-            metrics[f"return/{name}"] = float(self.recent_return[filled, i].mean()) if has else float("nan")
-            metrics[f"reward/{name}"] = float(mean_reward[i])
-            ret, val = batch.returns[:, i], batch.values[:, i]
-            var = ret.var()
-            metrics[f"explained_variance/{name}"] = (
-                float(1 - (ret - val).var() / var) if var > 0 else float("nan")
-            )
-        metrics["return/scalarized"] = float(self.recent_scalar[filled].mean()) if has else float("nan")
-        metrics["episode/length"] = float(self.recent_length[filled].mean()) if has else float("nan")
-        metrics["episode/survival"] = float(self.recent_survived[filled].mean()) if has else float("nan")
-        metrics["episodes"] = float(self.episodes)
-        return metrics
-
-    # ------------------------------------------------------------------ checkpoints
     def _modules(self) -> dict[str, nn.Module]:
         """The networks and the normalizer by checkpoint prefix."""
         return {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}
@@ -574,60 +472,8 @@ class MOPPOTrainer:
     def state_dict(self) -> Snapshot:
         """Weights, normalizer, Adam state, RNG, current observations and episode statistics
         (this rank's; the training loop merges the ranks' snapshots into one checkpoint)."""
-        if self.replicas is not None:
-            self.replicas.check_identical(self._modules(), self.iteration_count)
-        arrays = modules_to_arrays(self._modules())
-        optim = self.optimizer.state_dict()
-        for index, slot in optim["state"].items():
-            for key, tensor in slot.items():
-                arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
-        arrays["rng.torch"] = self.generator.get_state().numpy().copy()
-        arrays["obs"] = self.obs.numpy().copy()
-        for key in EPISODE_STATS:
-            arrays[f"episodes.{key}"] = getattr(self, key).numpy().copy()
-        meta = {
-            "iteration": self.iteration_count,
-            "env_steps": self.env_steps,
-            "learning_rate": self.learning_rate,
-            "optimizer_param_groups": optim["param_groups"],
-            "optimizer_state_keys": {str(i): sorted(s) for i, s in optim["state"].items()},
-            "recent_ptr": self.recent_ptr,
-            "episodes": self.episodes,
-            "obs_dim": self.env.obs_dim,
-            "action_dim": self.env.action_dim,
-            "objectives": list(self.names),
-        }
-        return Snapshot(arrays, meta)
+        return trainer_state(self)
 
     def load_state_dict(self, state: Snapshot) -> None:
         """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
-        meta, arrays = state.meta, state.arrays
-        expect = {
-            "obs_dim": self.env.obs_dim,
-            "action_dim": self.env.action_dim,
-            "objectives": list(self.names),
-        }
-        for key, value in expect.items():
-            if meta.get(key) != value:
-                raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
-        try:
-            load_modules(self._modules(), arrays)
-            optim_state: dict[int, dict[str, torch.Tensor]] = {}
-            for index, keys in meta["optimizer_state_keys"].items():
-                optim_state[int(index)] = {
-                    k: torch.from_numpy(arrays[f"optimizer.{index}.{k}"].copy()) for k in keys
-                }
-            self.optimizer.load_state_dict(
-                {"state": optim_state, "param_groups": meta["optimizer_param_groups"]}
-            )
-            self.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
-            self.obs = torch.from_numpy(arrays["obs"].copy())
-            for key in EPISODE_STATS:
-                setattr(self, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
-        except (KeyError, RuntimeError, ValueError) as exc:
-            raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None
-        self.iteration_count = int(meta["iteration"])
-        self.env_steps = int(meta["env_steps"])
-        self.learning_rate = float(meta["learning_rate"])
-        self.recent_ptr = int(meta["recent_ptr"])
-        self.episodes = int(meta["episodes"])
+        load_trainer_state(self, state)

@@ -1,0 +1,166 @@
+"""``amorctl runs``: list local and pretrained runs; make a pretrained entry from a run."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from amorctl.cli.options import JsonFlag
+from amorctl.cli.output import console, print_json
+from amorctl.core.errors import AmorError
+from amorctl.train import pretrained
+from amorctl.train.rundir import RunDir
+
+app = typer.Typer(
+    help="List runs (local or pretrained) and ship a run as a pretrained entry.", no_args_is_help=True
+)
+
+
+def _minutes(seconds: Any) -> str:
+    return "–" if seconds is None or not math.isfinite(float(seconds)) else f"{float(seconds) / 60:.1f} min"
+
+
+def _local_run(path: Path) -> dict[str, Any] | None:
+    """One local run's row (None when ``path`` holds no run); damaged runs say why."""
+    run = RunDir(path)
+    if not run.config_path.is_file():
+        return None
+    row: dict[str, Any] = {"run": str(path), "character": None, "env_kind": None, "iteration": None,
+                           "survival": None, "problem": None}  # fmt: skip
+    try:
+        cfg = run.config
+        row["env_kind"] = cfg.env.kind
+        row["character"] = cfg.env.character if cfg.env.kind == "tracking" else (cfg.env.gym_id or None)
+        found = run.checkpoints()
+        row["iteration"] = found[-1][0] if found else None
+        if run.metrics_path.is_file():
+            with run.metrics_path.open(newline="", encoding="utf-8") as f:
+                last: dict[str, str] = {}
+                for last in csv.DictReader(f):  # noqa: B007 (the last row is wanted)
+                    pass
+            value = float(last.get("episode/survival", "nan") or "nan")
+            row["survival"] = value if math.isfinite(value) else None
+    except AmorError as err:
+        row["problem"] = str(err)
+    return row
+
+
+def local_runs(folder: Path) -> list[dict[str, Any]]:
+    """Rows of :func:`_local_run` for ``folder`` itself if it is a run, else for its subfolders."""
+    if not folder.is_dir():
+        raise AmorError(f"{folder}: not a directory")
+    own = _local_run(folder)
+    if own is not None:
+        return [own]
+    rows = [_local_run(sub) for sub in sorted(folder.iterdir()) if sub.is_dir()]
+    return [r for r in rows if r is not None]
+
+
+@app.command("list")
+def list_runs(
+    folder: Annotated[Path, typer.Argument(help="Folder of run directories (or one run) to list.")] = Path(
+        "runs"
+    ),
+    pretrained_only: Annotated[
+        bool,
+        typer.Option("--pretrained", help="List the pretrained runs instead, with how they were trained."),
+    ] = False,
+    json_out: JsonFlag = False,
+) -> None:
+    """Local runs in FOLDER (default ./runs), or with --pretrained the shipped pretrained runs."""
+    if pretrained_only:
+        found = pretrained.entries()
+        doc: Any = {
+            "folders": [str(f) for f in pretrained.search_folders()],
+            "pretrained": [{"reference": e.reference, "path": str(e.path), **e.card} for e in found],
+        }
+        if json_out:
+            print_json(doc)
+            return
+        if not found:
+            console.print(
+                f"no pretrained runs installed (searched: {', '.join(doc['folders'])}; "
+                f"add folders with ${pretrained.PATH_ENV})",
+                highlight=False,
+            )
+            return
+        table = Table(title="Pretrained runs (use as RUN: pretrained:<name>)")
+        for col in ("name", "character", "iteration", "env steps", "wall time", "trained by", "code"):
+            table.add_column(col, overflow="fold")
+        for e in found:
+            c = e.card
+            table.add_row(
+                e.name, str(c.get("character")), str(c.get("iteration")), f"{c.get('env_steps', 0):,}",
+                _minutes(c.get("wall_time_s")), c.get("command") or "–", (c.get("commit") or "–")[:12],
+            )  # fmt: skip
+        console.print(table)
+        for e in found:
+            if e.card.get("description"):
+                console.print(f"{e.reference}: {e.card['description']}", highlight=False)
+        return
+    rows = local_runs(folder)
+    if json_out:
+        print_json({"folder": str(folder), "runs": rows})
+        return
+    if not rows:
+        console.print(f"no runs in {folder}", highlight=False)
+        return
+    table = Table(title=f"Runs in {folder}")
+    for col in ("run", "env", "character", "newest checkpoint", "last survival", "problem"):
+        table.add_column(col, overflow="fold")
+    for r in rows:
+        surv = "–" if r["survival"] is None else f"{r['survival']:.0%}"
+        it = "–" if r["iteration"] is None else str(r["iteration"])
+        table.add_row(r["run"], str(r["env_kind"]), str(r["character"]), it, surv, r["problem"] or "")
+    console.print(table)
+
+
+@app.command("export-pretrained")
+def export_pretrained_cmd(
+    run: Annotated[Path, typer.Argument(help="Run directory to ship.")],
+    name: Annotated[str, typer.Option("--name", help="Entry name: RUN is then pretrained:NAME.")],
+    out: Annotated[
+        Path,
+        typer.Option("--out", help="Folder receiving NAME/ (amorctl/pretrained ships it in the package)."),
+    ],
+    iteration: Annotated[
+        int | None, typer.Option("--iteration", help="Checkpoint iteration (default: the newest).")
+    ] = None,
+    command: Annotated[str, typer.Option("--command", help="The command that trained the run.")] = "",
+    description: Annotated[str, typer.Option("--description", help="One line on what it does.")] = "",
+    notes: Annotated[str, typer.Option("--notes", help="Free text for the card (measured figures).")] = "",
+    figure: Annotated[
+        list[Path] | None, typer.Option("--figure", help="Image copied into the entry; repeatable.")
+    ] = None,
+    commit: Annotated[
+        str | None,
+        typer.Option("--commit", help="Code version (default: git HEAD of the current directory)."),
+    ] = None,
+    replace: Annotated[
+        bool, typer.Option("--replace", help="Replace an existing entry of that name.")
+    ] = False,
+    json_out: JsonFlag = False,
+) -> None:
+    """Write OUT/NAME: one checkpoint without optimizer state, config, dataset, card.json, README.md."""
+    from amorctl.train.pretrained_export import export_pretrained
+
+    entry = export_pretrained(
+        run, name, out, iteration=iteration, command=command, description=description, notes=notes,
+        figures=figure or [], commit=commit, replace=replace,
+    )  # fmt: skip
+    size = sum(p.stat().st_size for p in entry.path.rglob("*") if p.is_file())
+    if json_out:
+        print_json({"path": str(entry.path), "bytes": size, "card": entry.card})
+        return
+    console.print(
+        f"wrote {entry.path} ({size / 1e6:.1f} MB, iteration {entry.card['iteration']}); "
+        f"use it as {entry.reference} once {entry.path.parent} is the package's pretrained/ folder "
+        f"or listed in ${pretrained.PATH_ENV}",
+        highlight=False,
+        soft_wrap=True,
+    )

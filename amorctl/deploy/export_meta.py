@@ -1,0 +1,172 @@
+"""The metadata and motions of a deploy bundle, gathered at export (docs/deploy.md lists every key).
+
+Split from :mod:`amorctl.deploy.export` (which builds and checks the ONNX graph): here the
+JSON-ready ``deploy.json`` content (also stored in the ONNX ``metadata_props``), the location of
+the character's model inside its installed plugin package, the objective set's plugin (so the
+torch-free runtime can compute rewards) and the run's reference motions as ``motions.npz`` arrays.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import asdict
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amorctl import __version__
+from amorctl.core.errors import AmorError
+from amorctl.core.specs import CharacterSpec
+from amorctl.deploy.bundle import FORMAT, OPSET, compiled_model_hash
+from amorctl.registry import get_registry
+from amorctl.train.rundir import RunDir
+
+
+def plugin_location(spec: CharacterSpec) -> dict[str, str]:
+    """The entry-point module of the character's plugin package and the MJCF path inside it."""
+    mjcf = spec.mjcf_path.resolve()
+    for ep in entry_points(group="amorctl"):
+        module = ep.value.split(":")[0]
+        try:
+            found = importlib.util.find_spec(module)
+        except (ImportError, ValueError):
+            continue
+        if found is None:
+            continue
+        base = (
+            Path(next(iter(found.submodule_search_locations)))
+            if found.submodule_search_locations
+            else Path(found.origin or ".").parent
+        ).resolve()
+        if mjcf.is_relative_to(base):
+            return {"plugin_module": module, "mjcf": str(mjcf.relative_to(base))}
+    raise AmorError(
+        f"{mjcf}: character {spec.name!r}'s model is not inside an installed amorctl plugin package"
+    )
+
+
+def objective_set_location(name: str | None) -> dict[str, Any] | None:
+    """``{"name", "plugin"}``: the objective set and the entry point (plugin) that registered it,
+    so the runtime loads only that plugin to compute rewards (None: the run has no objective set
+    plugin, e.g. the toy envs)."""
+    if not name:
+        return None
+    for row in get_registry().provided:
+        if row.kind == "objective-set" and row.name == name:
+            return {"name": name, "plugin": row.plugin}
+    raise AmorError(f"objective set {name!r} of the run is not installed")
+
+
+def motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
+    """The run's motion library as the bundle's ``motions.npz`` arrays (docs/deploy.md)."""
+    from amorctl.motion.dataset import load_dataset
+
+    cfg = run.config.env
+    if cfg.dataset:
+        path = Path(cfg.dataset)
+    else:
+        from amorctl.motion.cache import default_dataset
+
+        path = default_dataset(cfg.character)
+    if not path.is_file():
+        raise AmorError(f"{path}: the run's motion dataset is not found")
+    lib = load_dataset(path)
+    out = {
+        "frames": np.asarray(lib.frames, dtype=np.float32),
+        "z": np.asarray(lib.z, dtype=np.float32),
+    }
+    for key in ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
+                "ee_pos", "ee_quat", "ee_lin_vel"):  # fmt: skip
+        out[key] = np.asarray(getattr(lib, key), dtype=np.float64)
+    out["clip_starts"] = lib.starts.astype(np.int64)
+    out["clip_lengths"] = lib.lengths.astype(np.int64)
+    out["clip_names"] = np.array([c.name for c in lib.clips], dtype=np.str_)
+    return out
+
+
+def _action_meta(action_mode: str, out_name: str, ref: tuple[int, int, int] | None, clamp: bool, units: bool):
+    return {
+        "mode": action_mode,
+        "output": out_name,
+        "pd_target": (
+            "q* = clamp(ref_frame[joint_pos] + action, joint_ranges)"
+            if action_mode == "residual"
+            else "q* = clamp(action, joint_ranges)"
+            if action_mode == "absolute"
+            else None
+        ),
+        "reference_columns": None if ref is None else {"input": "ref_frame", "start": ref[1], "stop": ref[2]},
+        "clamp": "joint_ranges" if clamp else None,
+        "units": "rad" if units else None,
+    }
+
+
+def bundle_metadata(
+    *,
+    run: RunDir,
+    iteration: int,
+    objectives: list[str],
+    inputs: dict[str, Any],
+    outputs: dict[str, Any],
+    layout: dict[str, tuple[int, int]],
+    action_mode: str,
+    out_names: list[str],
+    ref: tuple[int, int, int] | None,
+    spec: CharacterSpec | None,
+    fall_drop: float | None,
+    context_inputs: list[str],
+    future_offsets: list[int],
+    parity: dict[str, Any],
+) -> dict[str, Any]:
+    """``deploy.json`` (without ``motions``, which the exporter fills once ``motions.npz`` is
+    written); every key of :data:`amorctl.deploy.bundle.METADATA_KEYS`."""
+    joints = list(spec.joint_names()) if spec else []
+    objective_set = run.config.env.objective_set if spec is not None else None
+    return {
+        "format": FORMAT,
+        "amorctl_version": __version__,
+        "run": str(run.path),
+        "iteration": int(iteration),
+        "objectives": objectives,
+        "objective_set": objective_set_location(objective_set),
+        "inputs": inputs,
+        "outputs": outputs,
+        "observation_layout": {k: [int(a), int(b)] for k, (a, b) in layout.items()},
+        "action": _action_meta(action_mode, out_names[0], ref, spec is not None, bool(joints)),
+        "joint_names": joints,
+        "joint_ranges": [[float(j.range[0]), float(j.range[1])] for j in spec.joints] if spec else [],
+        "pd_gains": {"kp": [j.kp for j in spec.joints], "kd": [j.kd for j in spec.joints]} if spec else None,
+        "torque_limits": [j.torque_limit for j in spec.joints] if spec else [],
+        "actuator_model": asdict(spec.actuator) if spec else None,
+        "default_pose": [float(spec.standing_pose.get(j, 0.0)) for j in joints] if spec else [],
+        "control_hz": spec.control_hz if spec else None,
+        "physics_hz": spec.physics_hz if spec else None,
+        "character": spec.name if spec else None,
+        "model_sha256": compiled_model_hash(spec) if spec else None,
+        "character_model": (
+            {
+                **plugin_location(spec),
+                "root_body": spec.root_body,
+                "end_effectors": list(spec.end_effectors),
+                "joint_groups": [j.group for j in spec.joints],
+                "standing_height": spec.standing_height,
+                "min_standing_height": spec.min_standing_height,
+                "scale_profile": spec.scale_profile,
+                "objective_scales": {k: dict(v) for k, v in spec.objective_scales.items()},
+            }
+            if spec
+            else None
+        ),
+        "termination": {"fall_height_drop": fall_drop} if spec else None,
+        "context": {
+            "inputs": context_inputs,
+            "future_frame_offsets": future_offsets,
+            "next_frame": "context of the step from s_t is the reference frame t+1 and its latent",
+            "clip_end": "the reference restarts its clip at the first frame after the last",
+        },
+        "motions": None,
+        "opset": OPSET,
+        "parity": parity,
+    }

@@ -1,0 +1,107 @@
+"""MOPPO's checkpoint state: :func:`trainer_state` and its inverse :func:`load_trainer_state`
+(``trainer`` is a :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
+from amorctl.plugins.backends.torch_cpu.networks import load_modules, modules_to_arrays
+from amorctl.plugins.backends.torch_cpu.weight_feedback import ARRAYS as FEEDBACK_ARRAYS
+
+#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
+EPISODE_STATS = (
+    "ep_return",
+    "ep_scalar",
+    "ep_length",
+    "recent_return",
+    "recent_scalar",
+    "recent_length",
+    "recent_survived",
+)
+
+
+def trainer_state(trainer: Any) -> Snapshot:
+    """Weights, normalizer, Adam state, RNG, current observations and episode statistics
+    (this rank's; the training loop merges the ranks' snapshots into one checkpoint)."""
+    if trainer.replicas is not None:
+        trainer.replicas.check_identical(trainer._modules(), trainer.iteration_count)
+    arrays = modules_to_arrays(trainer._modules())
+    optim = trainer.optimizer.state_dict()
+    for index, slot in optim["state"].items():
+        for key, tensor in slot.items():
+            arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
+    arrays["rng.torch"] = trainer.generator.get_state().numpy().copy()
+    arrays["obs"] = trainer.obs.numpy().copy()
+    for key in EPISODE_STATS:
+        arrays[f"episodes.{key}"] = getattr(trainer, key).numpy().copy()
+    _lever_arrays(trainer, arrays)
+    meta = {
+        "iteration": trainer.iteration_count,
+        "env_steps": trainer.env_steps,
+        "learning_rate": trainer.learning_rate,
+        "optimizer_param_groups": optim["param_groups"],
+        "optimizer_state_keys": {str(i): sorted(s) for i, s in optim["state"].items()},
+        "recent_ptr": trainer.recent_ptr,
+        "episodes": trainer.episodes,
+        "obs_dim": trainer.env.obs_dim,
+        "action_dim": trainer.env.action_dim,
+        "objectives": list(trainer.names),
+    }
+    if trainer.return_scale is not None:
+        meta["return_scale_updates"] = trainer.return_scale.updates
+    return Snapshot(arrays, meta)
+
+
+def _lever_arrays(trainer: Any, arrays: dict[str, Any]) -> None:
+    """The levers' state (only when on, so checkpoints without levers keep their keys)."""
+    if trainer.return_scale is not None:
+        for key, value in trainer.return_scale.state().items():
+            arrays[f"return_scale.{key}"] = value.numpy().copy()
+    if trainer.feedback is not None:
+        for key in FEEDBACK_ARRAYS:
+            arrays[f"feedback.{key}"] = getattr(trainer.feedback, key).numpy().copy()
+
+
+def load_trainer_state(trainer: Any, state: Snapshot) -> None:
+    """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
+    meta, arrays = state.meta, state.arrays
+    expect = {
+        "obs_dim": trainer.env.obs_dim,
+        "action_dim": trainer.env.action_dim,
+        "objectives": list(trainer.names),
+    }
+    for key, value in expect.items():
+        if meta.get(key) != value:
+            raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+    try:
+        load_modules(trainer._modules(), arrays)
+        optim_state: dict[int, dict[str, torch.Tensor]] = {}
+        for index, keys in meta["optimizer_state_keys"].items():
+            optim_state[int(index)] = {
+                k: torch.from_numpy(arrays[f"optimizer.{index}.{k}"].copy()) for k in keys
+            }
+        trainer.optimizer.load_state_dict(
+            {"state": optim_state, "param_groups": meta["optimizer_param_groups"]}
+        )
+        trainer.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
+        trainer.obs = torch.from_numpy(arrays["obs"].copy())
+        for key in EPISODE_STATS:
+            setattr(trainer, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
+        if trainer.return_scale is not None:
+            keys = trainer.return_scale.state()
+            saved = {k: torch.from_numpy(arrays[f"return_scale.{k}"].copy()) for k in keys}
+            trainer.return_scale.load_state(saved, int(meta["return_scale_updates"]))
+        if trainer.feedback is not None:
+            for key in FEEDBACK_ARRAYS:
+                setattr(trainer.feedback, key, torch.from_numpy(arrays[f"feedback.{key}"].copy()))
+    except (KeyError, RuntimeError, ValueError) as exc:
+        raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None
+    trainer.iteration_count = int(meta["iteration"])
+    trainer.env_steps = int(meta["env_steps"])
+    trainer.learning_rate = float(meta["learning_rate"])
+    trainer.recent_ptr = int(meta["recent_ptr"])
+    trainer.episodes = int(meta["episodes"])

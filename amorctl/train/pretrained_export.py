@@ -1,0 +1,273 @@
+"""``amorctl runs export-pretrained``: make a pretrained entry (:mod:`amorctl.train.pretrained`) from a run.
+
+The entry holds one checkpoint stripped to what inference needs (no optimizer, RNG, rollout or
+env state), the config with ``env.dataset = "dataset.mcap"``, a copy of the run's dataset, the
+learning curve (``metrics.csv``), the given figures, ``card.json`` and ``README.md``. It is built in
+a temporary folder beside the target and renamed into place only after the stripped policy gave
+the same actions and values as the run's own on random observations, so a failed export leaves
+nothing behind.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import json
+import math
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amorctl.core.config import to_toml
+from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_write_text
+from amorctl.motion.heldout import run_dataset_path
+from amorctl.train import pretrained
+from amorctl.train.checkpoint import save_checkpoint
+from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir
+
+DATASET_FILE = "dataset.mcap"
+#: Trainer arrays / metadata that only resuming training needs (dropped): key prefixes.
+_TRAINING_ONLY = ("optimizer", "rng", "episodes.", "obs")
+#: Observations compared between the run's policy and the stripped one.
+_CHECK_SAMPLES = 64
+
+
+def strip_trainer_state(state: Snapshot) -> Snapshot:
+    """The trainer snapshot without optimizer, RNG, per-env rollout and episode state.
+
+    Args:
+        state: a checkpoint's trainer snapshot (arrays + JSON meta).
+
+    Returns:
+        A snapshot with the remaining arrays (networks, normalizer) and meta.
+    """
+    arrays = {k: v for k, v in state.arrays.items() if not k.startswith(_TRAINING_ONLY)}
+    meta = {k: v for k, v in state.meta.items() if not k.startswith("optimizer")}
+    return Snapshot(arrays, meta)
+
+
+def wall_time_s(metrics_path: Path) -> float:
+    """Training wall time from ``metrics.csv``: ``wall_time_s`` restarts at each resume, so the
+    total is the sum of each segment's last value (NaN without the file or the column)."""
+    if not metrics_path.is_file():
+        return math.nan
+    with metrics_path.open(newline="", encoding="utf-8") as f:
+        times = [float(r["wall_time_s"]) for r in csv.DictReader(f) if r.get("wall_time_s")]
+    if not times:
+        return math.nan
+    total, prev = 0.0, 0.0
+    for t in times:
+        if t < prev:  # a resume started a new segment
+            total += prev
+        prev = t
+    return total + prev
+
+
+def _last_metrics(metrics_path: Path) -> dict[str, float]:
+    if not metrics_path.is_file():
+        return {}
+    with metrics_path.open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    out: dict[str, float] = {}
+    for key, value in (rows[-1] if rows else {}).items():
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            continue
+        if math.isfinite(v) and (key.startswith(("return/", "survival/")) or key.startswith("episode/")):
+            out[key] = v
+    return out
+
+
+def git_commit(where: Path) -> str:
+    """``git rev-parse HEAD`` of the repository at ``where`` (``+dirty``: local changes), or ``""``."""
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        )
+        if head.returncode != 0:
+            return ""
+        dirty = subprocess.run(
+            ["git", "-C", str(where), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10,
+        )  # fmt: skip
+        return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _check_same_policy(original: Any, copy: Any, obs_dim: int, m: int) -> None:
+    """The stripped policy must act and value exactly like the run's on random observations."""
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(_CHECK_SAMPLES, obs_dim)).astype(np.float32)
+    w = rng.dirichlet(np.ones(m), size=_CHECK_SAMPLES).astype(np.float32)
+    obs[:, obs_dim - m :] = w  # the last m entries are the weights
+    for what in ("actions", "values"):
+        call = (lambda p: p(obs)) if what == "actions" else (lambda p: p.values(obs))
+        a, b = np.asarray(call(original)), np.asarray(call(copy))
+        if a.shape != b.shape or not np.array_equal(a, b):
+            raise AmorError(f"the stripped checkpoint's {what} differ from the run's; nothing was written")
+
+
+def export_pretrained(
+    run_path: str | Path,
+    name: str,
+    out: str | Path,
+    *,
+    iteration: int | None = None,
+    command: str = "",
+    description: str = "",
+    notes: str = "",
+    figures: Sequence[str | Path] = (),
+    commit: str | None = None,
+    replace: bool = False,
+) -> pretrained.PretrainedEntry:
+    """Write the pretrained entry ``out/name`` from checkpoint ``iteration`` (None: newest) of a run.
+
+    Args:
+        run_path: the run directory (or another ``pretrained:`` entry).
+        name: the entry's name (``pretrained:<name>``): lowercase letters, digits, ``.``, ``_``, ``-``.
+        out: the folder that receives ``<name>/`` (``amorctl/pretrained`` to ship it in the package).
+        command: the command that trained the run (recorded in the card).
+        description: one line on what the policy does.
+        notes: free text for the card (e.g. measured figures).
+        figures: image files copied into ``figures/`` and listed in the card.
+        commit: the code version that trained it; None: ``git rev-parse HEAD`` of the current directory.
+        replace: replace an existing entry of that name in ``out``.
+
+    Raises:
+        AmorError: a bad name, an existing entry (without ``replace``), a missing run, checkpoint,
+            dataset or figure, or a stripped policy that differs from the run's.
+    """
+    if not pretrained.NAME_RE.match(name):
+        raise AmorError(f"--name {name!r}: use lowercase letters, digits, '.', '_' or '-' (at most 64)")
+    out = Path(out)
+    target = out / name
+    if target.exists() and not replace:
+        raise AmorError(f"{target}: already exists (pass --replace to overwrite it)")
+    figure_paths = [Path(f) for f in figures]
+    for fig in figure_paths:
+        if not fig.is_file():
+            raise AmorError(f"--figure {fig}: file not found")
+    run = RunDir.open(run_path)
+    ckpt = run.checkpoint(iteration)
+    policy = run.policy_of(ckpt)
+    config = run.config
+    dataset = (
+        run_dataset_path(config.env.character, config.env.dataset) if config.env.kind == "tracking" else None
+    )
+    if dataset is not None and not dataset.is_file():
+        raise AmorError(f"{dataset}: the run's motion dataset is not there (needed in the entry)")
+    stripped = strip_trainer_state(ckpt.trainer)
+    meta = {k: v for k, v in ckpt.meta.items() if k != "iteration"}
+
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=out))
+    try:
+        if dataset is not None:
+            shutil.copyfile(dataset, tmp / DATASET_FILE)
+            config = dataclasses.replace(config, env=dataclasses.replace(config.env, dataset=DATASET_FILE))
+        atomic_write_text(tmp / CONFIG_FILE, to_toml(config))
+        save_checkpoint(tmp / CHECKPOINT_DIR, ckpt.iteration, meta, stripped, None)
+        if run.metrics_path.is_file():
+            shutil.copyfile(run.metrics_path, tmp / "metrics.csv")
+        copied = []
+        for fig in figure_paths:
+            (tmp / "figures").mkdir(exist_ok=True)
+            shutil.copyfile(fig, tmp / "figures" / fig.name)
+            copied.append(f"figures/{fig.name}")
+        card = _card(run, ckpt, name, description, command, commit, notes, copied, dataset, tmp)
+        atomic_write_text(tmp / pretrained.CARD_FILE, json.dumps(card, indent=2) + "\n")
+        atomic_write_text(tmp / "README.md", card_markdown(card))
+        check = RunDir(tmp)
+        _check_same_policy(policy, check.policy(), int(policy.obs_dim), len(policy.objectives))
+        tmp.chmod(0o755)  # mkdtemp makes it private; an installed entry is read by everyone
+        if target.exists():
+            shutil.rmtree(target)
+        tmp.rename(target)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return pretrained.PretrainedEntry(name, target, card)
+
+
+def _card(
+    run: RunDir, ckpt: Any, name: str, description: str, command: str, commit: str | None, notes: str,
+    figures: list[str], dataset: Path | None, folder: Path,
+) -> dict[str, Any]:  # fmt: skip
+    """The card's fields (:data:`amorctl.train.pretrained.CARD_KEYS`)."""
+    cfg = run.config
+    tm = ckpt.trainer.meta
+    wall = wall_time_s(run.metrics_path)
+    data = None
+    if dataset is not None:
+        copy = folder / DATASET_FILE
+        data = {
+            "file": DATASET_FILE,
+            "source": str(dataset),
+            "bytes": copy.stat().st_size,
+            "sha256": _sha256(copy),
+        }
+    return {
+        "format": pretrained.CARD_FORMAT,
+        "name": name,
+        "description": description,
+        "character": cfg.env.character if cfg.env.kind == "tracking" else None,
+        "env_kind": cfg.env.kind,
+        "backend": cfg.run.backend,
+        "objectives": list(ckpt.meta.get("objectives", [])),
+        "iteration": ckpt.iteration,
+        "env_steps": int(tm.get("env_steps", 0)),
+        "episodes": int(tm.get("episodes", 0)),
+        "wall_time_s": None if math.isnan(wall) else round(wall, 1),
+        "command": command,
+        "commit": git_commit(Path.cwd()) if commit is None else commit,
+        "source_run": run.label,
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "dataset": data,
+        "summary": _last_metrics(run.metrics_path),
+        "figures": figures,
+        "notes": notes,
+    }
+
+
+def card_markdown(card: dict[str, Any]) -> str:
+    """``README.md`` of an entry: the card for people."""
+    wall = card.get("wall_time_s")
+    lines = [
+        f"# pretrained:{card['name']}",
+        "",
+        card.get("description") or "(no description)",
+        "",
+        f"- character: {card.get('character')} · env {card.get('env_kind')} · backend {card.get('backend')}",
+        f"- objectives: {', '.join(card.get('objectives', []))}",
+        f"- checkpoint: iteration {card.get('iteration')}, {card.get('env_steps', 0):,} env steps, "
+        f"{card.get('episodes', 0):,} episodes",
+        f"- wall time: {'unknown' if wall is None else f'{wall / 60:.1f} min'}",
+        f"- trained by: `{card.get('command') or 'not recorded'}`",
+        f"- code version: {card.get('commit') or 'not recorded'}; source run: {card.get('source_run')}",
+        f"- made: {card.get('created_utc')}",
+    ]
+    if card.get("summary"):
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in card["summary"].items())
+        lines.append(f"- last training iteration: {shown}")
+    ref = f"pretrained:{card['name']}"
+    lines += ["", "Use it wherever a run directory goes:", "", "```bash"]
+    lines += [f"amorctl pareto {ref}", f"amorctl tune {ref}", f"amorctl evaluate {ref}", "```"]
+    for fig in card.get("figures", []):
+        lines += ["", f"![{fig}]({fig})"]
+    if card.get("notes"):
+        lines += ["", card["notes"]]
+    return "\n".join(lines) + "\n"

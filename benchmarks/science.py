@@ -1,0 +1,573 @@
+"""Issue 13's measurement protocol: does the one AMOR policy obey ``w``? Writes ``docs/science.md``.
+
+On a character's walking clips (``walk``, ``walker/*``: the selection of
+``benchmarks/learn_biped20_walk.py``), in this order, each part saving what it measured to
+``OUT/science.json`` and re-rendering the report before the next starts (a partial run still
+documents what it measured, and names the command for the rest):
+
+- ``train``: MOPPO for ``--budget-minutes`` of wall clock (``OUT/moppo``; every checkpoint kept);
+- ``sweeps``: claim (ii), ``evaluate --sweep`` for each objective (5 levels, rest equal): level
+  means, monotonicity, Spearman rho, effect size, survival; for ``smooth`` the action rate and
+  joint-velocity RMS per level;
+- ``front``: claim (i), 1024 Dirichlet weights on ``walk``: non-dominated fraction and hypervolume
+  at a fixed reference point, on all episodes and on the survivors;
+- ``bar``: the learning bar, survival over 10 s (uniform w) and joint MAE (tracking-heavy vs uniform);
+- ``ppo``: PPO = the same trainer with ``[env] fixed_weights = "uniform"`` for MOPPO's iterations
+  (equal env steps; ``OUT/ppo-uniform``);
+- ``curves``: learning curves of both runs' checkpoints (uniform-w return of MOPPO and PPO, MOPPO
+  at random w) in one figure, and the MOPPO / PPO ratio at the last common env-step count;
+- ``kfixed``: 7 PPO runs with corner-heavy fixed weights sharing MOPPO's total env steps; the
+  hypervolume of their 7 points vs AMOR's at the same weights.
+
+Usage:
+  python benchmarks/science.py --budget-minutes 25 --character biped20 --preset science \\
+      --out runs/science-biped20 [--only train,sweeps,...] [--skip-train] [--deadline 12:45]
+Tiny smoke test: --budget-minutes 1 --sweep-episodes 2 --front-samples 16 --doc /tmp/s.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime as dt
+import itertools
+import json
+import math
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from learn_biped20_walk import save_subset, walking_subset
+from science_measure import fixed_points, measure_bar, measure_front, measure_sweeps, scalarized
+from science_report import common_iterations, corner_heavy_weights, hv_reference, render_markdown
+
+from amorctl.analysis.eval_env import sweep_weights
+from amorctl.analysis.front import hypervolume
+from amorctl.core.config import TrainConfig, load_preset, override
+from amorctl.core.files import atomic_write_text
+from amorctl.core.weights import format_weights
+from amorctl.motion.cache import default_dataset
+from amorctl.motion.dataset import load_dataset
+from amorctl.sim.cpus import available_cpus
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import RunDir
+
+PARTS = ("train", "sweeps", "front", "bar", "ppo", "curves", "kfixed")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ------------------------------------------------------------------------------------ helpers
+def metrics_rows(run: Path) -> list[dict[str, str]]:
+    path = run / "metrics.csv"
+    return list(csv.DictReader(path.open())) if path.exists() else []
+
+
+def trained_wall_s(rows: list[dict[str, str]]) -> float:
+    """Training wall time summed over resumed segments (``wall_time_s`` restarts at each resume)."""
+    wall = [float(r["wall_time_s"]) for r in rows]
+    return (wall[-1] + sum(a for a, b in itertools.pairwise(wall) if b < a)) if wall else 0.0
+
+
+def run_summary(run: Path, weights: str) -> dict[str, Any]:
+    rows = metrics_rows(run)
+    last = rows[-1] if rows else {}
+    return {
+        "run": str(run),
+        "weights": weights,
+        "iterations": int(float(last.get("iteration", 0))),
+        "env_steps": int(float(last.get("env_steps", 0))),
+        "wall_s": trained_wall_s(rows),
+        "train_survival": float(last["episode/survival"]) if last.get("episode/survival") else None,
+    }
+
+
+def git_commit() -> str:
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        )
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True)
+    except OSError:
+        return "unknown"
+    return head.stdout.strip() + (" + uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def machine() -> str:
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import torch
+
+    return (
+        f"{model or platform.processor()}, {os.cpu_count()} cores, this process pinned to "
+        f"{available_cpus()} (affinity {sorted(os.sched_getaffinity(0))}), torch threads "
+        f"{torch.get_num_threads()}, load average at start {os.getloadavg()[0]:.2f}"
+    )
+
+
+class Clock:
+    """Wall-clock deadline (absolute, UTC): parts that would start after it are skipped."""
+
+    def __init__(self, deadline: str | None) -> None:
+        self.at: float | None = None
+        if deadline:
+            hh, mm = (int(x) for x in deadline.split(":"))
+            now = dt.datetime.now(dt.UTC)
+            self.at = now.replace(hour=hh, minute=mm, second=0, microsecond=0).timestamp()
+
+    def left(self) -> float:
+        return math.inf if self.at is None else self.at - time.time()
+
+
+# ------------------------------------------------------------------------------------ training
+def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: float, label: str) -> None:
+    """Train (or continue) the run in ``out`` until ``config.run.iterations``, the wall-clock budget
+    (summed over resumed segments) or the absolute time ``stop_at`` (epoch seconds)."""
+    run = RunDir(out)
+    resume = run.exists() and bool(run.checkpoints())
+    spent = trained_wall_s(metrics_rows(out)) if resume else 0.0
+    if resume:
+        config = override(run.config, run__iterations=config.run.iterations)
+        if run.checkpoints()[-1][0] >= config.run.iterations:
+            return
+    remaining = math.inf if budget_s is None else budget_s - spent
+    if remaining <= 0 or time.time() >= stop_at:
+        return
+    began = time.perf_counter()
+    shown = [began]
+
+    def progress(m: dict[str, float], total: int, elapsed: float) -> None:
+        if time.perf_counter() - shown[0] >= 60:
+            shown[0] = time.perf_counter()
+            print(
+                f"  {label}: iteration {m.get('iteration', 0):.0f}, {m.get('env_steps', 0):,.0f} env steps, "
+                f"{m.get('env_steps_per_s', 0):,.0f}/s, "
+                f"survival {m.get('episode/survival', float('nan')):.2f}, "
+                f"return·w {m.get('return/scalarized', float('nan')):.1f}, {elapsed / 60:.1f} min",
+                flush=True,
+            )
+
+    result = train_run(
+        config,
+        out,
+        resume=resume,
+        on_iteration=progress,
+        stop_when=lambda m: time.perf_counter() - began > remaining or time.time() > stop_at,
+    )
+    print(f"  {label}: iterations {result.start_iteration} -> {result.end_iteration}", flush=True)
+
+
+# ------------------------------------------------------------------------------------ parts
+class Science:
+    """The state of one protocol run: arguments, the results dict, where to write."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.out: Path = args.out
+        self.clock = Clock(args.deadline)
+        self.json_path = self.out / "science.json"
+        self.results: dict[str, Any] = (
+            json.loads(self.json_path.read_text()) if self.json_path.exists() else {}
+        )
+        self.results.setdefault("skipped", {})
+        self.doc: Path = args.doc
+        self.img = self.doc.parent / "img"
+        self.moppo = self.out / "moppo"
+        self.ppo = self.out / "ppo-uniform"
+        self.dataset = self.out / "walking.mcap"
+
+    # -- config and runs
+    def base_config(self, **changes: Any) -> TrainConfig:
+        a = self.args
+        return override(
+            load_preset(a.preset),
+            env__character=a.character,
+            env__dataset=str(self.dataset),
+            env__num_envs=a.num_envs or load_preset(a.preset).env.num_envs,
+            run__seed=a.seed,
+            run__iterations=1_000_000,
+            run__checkpoint_every=a.checkpoint_every,
+            run__keep_checkpoints=0,
+            run__threads=available_cpus(),
+            **changes,
+        )
+
+    def moppo_iterations(self) -> int:
+        return RunDir.open(self.moppo).checkpoints()[-1][0]
+
+    def save(self) -> None:
+        self.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.json_path, json.dumps(self.results, indent=1) + "\n")
+        self.doc.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.doc, render_markdown(self.results, self.protocol()))
+
+    def rel(self, path: Path) -> str:
+        return os.path.relpath(path, self.doc.parent)
+
+    def meta(self) -> None:
+        a = self.args
+        base = (
+            f"python benchmarks/science.py --character {a.character} --preset {a.preset} "
+            f"--budget-minutes {a.budget_minutes:g} --out {self.out}"
+        )
+        self.results["meta"] = {
+            "command": shlex.join([Path(sys.executable).name, *sys.argv]),
+            "commit": git_commit(),
+            "date_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+            "machine": machine(),
+            "character": a.character,
+            "preset": a.preset,
+            "dataset": f"the {len(load_dataset(self.dataset).clips)} walking clips of the built-in set "
+            f"(`walk`, `walker/*`)",
+            "budget_minutes": a.budget_minutes,
+            "out": str(self.out),
+            "rerun": {
+                "train": base + " --only train",
+                "sweeps": base + " --skip-train --only sweeps",
+                "front": base + " --skip-train --only front",
+                "bar": base + " --skip-train --only bar",
+                "curves": base + " --only ppo,curves",
+                "kfixed": base + " --only kfixed",
+                "humanoid36": base.replace(f"--character {a.character}", "--character humanoid36").replace(
+                    str(self.out), "runs/science-humanoid36"
+                ),
+            },
+        }
+
+    def protocol(self) -> str:
+        a = self.args
+        return f"""## Protocol
+
+- **Training** (`train`): `{a.preset}` preset on the walking clips, {a.num_envs or "the preset's"} envs,
+  seed {a.seed}, one CPU thread per allowed core (the run is pinned with `taskset`); MOPPO samples
+  `w` per episode as the preset says; checkpoints every {a.checkpoint_every} iterations, all kept.
+- **Claim (ii)** (`sweeps`): for each objective k, `amorctl.analysis.sweeps.weight_sweep` (what
+  `amorctl evaluate RUN --sweep k` reports): w_k at 0, .25, .5, .75, 1, the rest share 1 - w_k
+  equally; {a.sweep_episodes} episodes of 10 s per level on the walking clips (seed {a.eval_seed}),
+  deterministic policy. Level means of the unweighted return of k; monotonic = every level's mean
+  above the one before; Spearman ρ between w_k and the return over all episodes (scipy); effect
+  size = (mean at w_k = 1 − mean at w_k = 0) / std over episodes at w_k = 0; survival per level.
+  For `smooth` the same envs and seed are rolled out again with the steps recorded: action rate =
+  mean `||q*_t − q*_(t−1)||²` of the PD targets sent (`q* = reference + residual action`),
+  joint-velocity RMS from finite differences of the joint angles; step pairs across a clip switch
+  or an episode end are left out.
+- **Claim (i)** (`front`): {a.front_samples} weights `w ~ Dirichlet(1)` (seed {a.eval_seed}), one
+  10 s episode each on `walk` (`amorctl.analysis.sweeps.pareto_sweep`); non-dominated fraction
+  in all 7 objectives on all episodes and on the surviving episodes alone; hypervolume
+  (moocore, exact up to 256 front points in 7-D, else Monte Carlo with a 95 % interval) at the
+  **fixed reference point** r = T for each tracking objective and r = 0 for `smooth` (T = the
+  episode's control steps: an episode that survives with zero tracking reward, and whose
+  smoothness penalties cancel the alive bonus), divided by T^7.
+- **Learning bar** (`bar`): {a.bar_episodes} episodes of 10 s on the walking clips (seed
+  {a.eval_seed}) under uniform w and under the tracking-heavy w (0.3 on up, lo and feet each, 0.1
+  shared by the other four), same starts; `amorctl.analysis.tracking_metrics.evaluate_setting`.
+- **MOPPO vs PPO** (`ppo`, `curves`): PPO is the same trainer and config with
+  `[env] fixed_weights = "uniform"` (docs/train.md, "Fixed weights"), trained for MOPPO's number of
+  iterations (same batch, so equal env steps). Up to {a.curve_points} checkpoint iterations common
+  to both runs are evaluated with {a.curve_episodes} episodes each: scalarized return `w·J` under
+  uniform w (both) and under Dirichlet w (MOPPO; one weight per episode, seed {a.eval_seed}).
+  Ratio = MOPPO / PPO uniform-w return at the last common checkpoint.
+- **One policy vs K retrained** (`kfixed`): 7 PPO runs, run k with the corner-heavy fixed weight
+  w_k = 0.7 (0.05 each other objective), ⌈MOPPO iterations / 7⌉ iterations each (the same total
+  env steps as MOPPO); each evaluated under its own weight, AMOR under the same 7 weights,
+  {a.kfixed_episodes} episodes each on `walk`; hypervolume of each 7-point set at the claim (i)
+  reference point.
+"""
+
+    # -- the parts
+    def part_train(self) -> None:
+        cfg = self.base_config()
+        train(cfg, self.moppo, budget_s=self.args.budget_minutes * 60, stop_at=self.stop_at(0), label="MOPPO")
+        self.results["train"] = run_summary(self.moppo, f"MOPPO (preset `{self.args.preset}` sampling)")
+
+    def part_ppo(self) -> None:
+        iters = self.moppo_iterations()
+        cfg = self.base_config(env__fixed_weights="uniform", run__iterations=iters)
+        stop = self.stop_at(self.args.reserve_minutes * 60)
+        train(cfg, self.ppo, budget_s=None, stop_at=stop, label="PPO (uniform w)")
+        self.results["ppo"] = run_summary(self.ppo, "fixed uniform (PPO)")
+
+    def stop_at(self, reserve_s: float) -> float:
+        return math.inf if self.clock.at is None else self.clock.at - reserve_s
+
+    def policy(self) -> tuple[Any, TrainConfig]:
+        run = RunDir.open(self.moppo)
+        return run.policy(), run.config
+
+    def part_sweeps(self) -> None:
+        pol, cfg = self.policy()
+        res, raw = measure_sweeps(pol, cfg, episodes=self.args.sweep_episodes, seed=self.args.eval_seed)
+        fig = self.img / f"science-{self.args.character}-sweeps.png"
+        if plot_sweeps(res, raw, fig):
+            res["figure"] = self.rel(fig)
+        self.results["sweeps"] = res
+
+    def part_front(self) -> None:
+        pol, cfg = self.policy()
+        self.results["front"] = measure_front(
+            pol, cfg, samples=self.args.front_samples, seed=self.args.eval_seed
+        )
+
+    def part_bar(self) -> None:
+        pol, cfg = self.policy()
+        self.results["bar"] = measure_bar(pol, cfg, episodes=self.args.bar_episodes, seed=self.args.eval_seed)
+
+    def part_curves(self) -> None:
+        a = self.args
+        mo, pp = RunDir.open(self.moppo), RunDir.open(self.ppo)
+        iters = common_iterations(
+            [i for i, _ in mo.checkpoints()], [i for i, _ in pp.checkpoints()], a.curve_points
+        )
+        cfg = mo.config
+        m = len(mo.policy().objectives)
+        uniform = np.full((a.curve_episodes, m), 1.0 / m)
+        random_w, _ = sweep_weights(m, a.curve_episodes, seed=a.eval_seed)
+        steps = {int(float(r["iteration"])): int(float(r["env_steps"])) for r in metrics_rows(self.moppo)}
+        rows = []
+        for it in iters:
+            if self.clock.left() < 20:
+                break
+            pm, pu = mo.policy(it), pp.policy(it)
+            row = {
+                "iteration": it,
+                "env_steps": steps.get(it, it * cfg.env.num_envs * cfg.ppo.num_steps),
+                "moppo_uniform": scalarized(pm, cfg, uniform, a.eval_seed),
+                "moppo_random": scalarized(pm, cfg, random_w, a.eval_seed),
+                "ppo_uniform": scalarized(pu, pp.config, uniform, a.eval_seed),
+            }
+            rows.append(row)
+            print(
+                f"  curve @ {row['env_steps']:,} env steps: PPO {row['ppo_uniform']['return']:.1f}, MOPPO "
+                f"uniform {row['moppo_uniform']['return']:.1f}, random {row['moppo_random']['return']:.1f}",
+                flush=True,
+            )
+        res: dict[str, Any] = {"episodes": a.curve_episodes, "seed": a.eval_seed, "rows": rows, "ratio": None}
+        if rows:
+            last = rows[-1]
+            ppo_ret = last["ppo_uniform"]["return"]
+            res["ratio"] = last["moppo_uniform"]["return"] / ppo_ret if ppo_ret > 0 else None
+            res["ratio_env_steps"] = last["env_steps"]
+            if pp.checkpoints()[-1][0] < mo.checkpoints()[-1][0]:
+                res["note"] = (
+                    f"PPO stopped at iteration {pp.checkpoints()[-1][0]} of MOPPO's "
+                    f"{mo.checkpoints()[-1][0]} (the deadline), so the ratio is at that env-step count."
+                )
+            fig = self.img / f"science-{a.character}-curves.png"
+            if plot_curves(rows, fig, a.character):
+                res["figure"] = self.rel(fig)
+        self.results["curves"] = res
+
+    def part_kfixed(self, train_runs: bool) -> None:
+        a = self.args
+        mo = RunDir.open(self.moppo)
+        cfg = mo.config
+        names = tuple(mo.policy().objectives)
+        w = corner_heavy_weights(len(names), 0.7)
+        each = math.ceil(self.moppo_iterations() / len(names))
+        runs = [self.out / f"fixed-{n}" for n in names]
+        for run, row in zip(runs, w, strict=True):
+            if train_runs:
+                c = self.base_config(env__fixed_weights=format_weights(row, names), run__iterations=each)
+                train(c, run, budget_s=None, stop_at=self.stop_at(a.reserve_minutes * 60), label=run.name)
+        pols = [RunDir.open(r).policy() for r in runs]
+        pts_f, surv_f = fixed_points(
+            pols, cfg, w, episodes=a.kfixed_episodes, seed=a.eval_seed, motion="walk"
+        )
+        pts_a, surv_a = fixed_points(
+            [mo.policy()] * len(names), cfg, w, episodes=a.kfixed_episodes, seed=a.eval_seed, motion="walk"
+        )
+        front = self.results.get("front")
+        t = front["hv_scale"] if front else float(round(cfg.env.episode_seconds * 50))
+        ref = hv_reference(len(names), int(t), names.index("smooth") if "smooth" in names else None)
+        scale = t ** len(names)
+        self.results["kfixed"] = {
+            "heavy": 0.7,
+            "iterations_each": each,
+            "env_steps_total": sum(run_summary(r, "")["env_steps"] for r in runs),
+            "moppo_env_steps": run_summary(self.moppo, "")["env_steps"],
+            "episodes": a.kfixed_episodes,
+            "motion": "walk",
+            "hv_fixed_7": hypervolume(pts_f, ref).value / scale,
+            "hv_amor_7": hypervolume(pts_a, ref).value / scale,
+            "hv_amor_front": front["all"]["hypervolume"]["value"] if front else None,
+            "points_fixed": pts_f.tolist(),
+            "points_amor": pts_a.tolist(),
+            "survival_fixed": surv_f.tolist(),
+            "survival_amor": surv_a.tolist(),
+        }
+        k = self.results["kfixed"]
+        print(
+            f"  kfixed: HV PPO×7 {k['hv_fixed_7']:.4g}, AMOR at the 7 weights {k['hv_amor_7']:.4g}",
+            flush=True,
+        )
+
+
+# ------------------------------------------------------------------------------------ figures
+def _pyplot() -> Any:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    return plt
+
+
+def plot_sweeps(res: dict[str, Any], raw: dict[str, np.ndarray], path: Path) -> bool:
+    plt = _pyplot()
+    if plt is None:
+        return False
+    names = list(res["objectives"])
+    cols = 4
+    fig, axes = plt.subplots(2, cols, figsize=(14, 6.4))
+    levels = np.array(res["levels"])
+    for ax, name in zip(axes.flat, names, strict=False):
+        s, r = res["objectives"][name], raw[name]
+        for i, lv in enumerate(levels):
+            ax.scatter(np.full(r.shape[1], lv), r[i], s=6, alpha=0.35, color="tab:blue")
+        ax.errorbar(levels, s["mean"], yerr=s["std"], color="k", marker="o", capsize=3)
+        ax.set_title(
+            f"{name}: ρ {s['spearman_rho'] if s['spearman_rho'] is None else round(s['spearman_rho'], 2)}"
+        )
+        ax.set_xlabel(f"w_{name}")
+        ax.grid(alpha=0.3)
+    last = axes.flat[len(names)] if len(names) < 2 * cols else None
+    sm = res.get("smooth_motion")
+    if last is not None and sm:
+        ax2 = last.twinx()
+        last.plot(levels, sm["action_rate"], "o-", color="tab:red", label="action rate (rad²)")
+        ax2.plot(levels, sm["joint_vel_rms"], "s--", color="tab:green", label="joint vel RMS (rad/s)")
+        last.set_title("smooth sweep: motion")
+        last.set_xlabel("w_smooth")
+        last.legend(loc="upper left", fontsize=7)
+        ax2.legend(loc="upper right", fontsize=7)
+    fig.suptitle("claim (ii): return of each objective vs its weight (rest equal); dots = episodes")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+def plot_curves(rows: list[dict[str, Any]], path: Path, character: str) -> bool:
+    plt = _pyplot()
+    if plt is None:
+        return False
+    x = np.array([r["env_steps"] for r in rows]) / 1e6
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    for key, label, style in (
+        ("ppo_uniform", "PPO (fixed uniform w), at uniform w", "s-"),
+        ("moppo_uniform", "MOPPO, at uniform w", "o-"),
+        ("moppo_random", "MOPPO, at Dirichlet w", "^--"),
+    ):
+        axes[0].plot(x, [r[key]["return"] for r in rows], style, label=label)
+        axes[1].plot(x, [r[key]["survival"] for r in rows], style, label=label)
+    axes[0].set_ylabel("scalarized return w·J (10 s episode)")
+    axes[1].set_ylabel("survival over 10 s")
+    for ax in axes:
+        ax.set_xlabel("env steps (millions)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{character} walking: MOPPO vs PPO at equal env steps")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+# ------------------------------------------------------------------------------------ main
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--budget-minutes", type=float, default=25.0, help="MOPPO training wall clock")
+    p.add_argument("--character", choices=("biped20", "humanoid36"), default="biped20")
+    p.add_argument("--preset", default="science")
+    p.add_argument("--out", type=Path, default=None, help="default runs/science-<character>")
+    p.add_argument(
+        "--doc", type=Path, default=ROOT / "docs" / "science.md", help="report (figures in its img/)"
+    )
+    p.add_argument("--skip-train", action="store_true", help="measure existing runs; train nothing")
+    p.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts of {', '.join(PARTS)}")
+    p.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC; stop training / skip parts then")
+    p.add_argument(
+        "--reserve-minutes", type=float, default=4.0, help="PPO training ends this long before --deadline"
+    )
+    p.add_argument("--seed", type=int, default=0, help="training seed")
+    p.add_argument("--eval-seed", type=int, default=1)
+    p.add_argument("--num-envs", type=int, default=0, help="training envs (0: the preset's)")
+    p.add_argument("--checkpoint-every", type=int, default=25)
+    p.add_argument("--sweep-episodes", type=int, default=32)
+    p.add_argument("--front-samples", type=int, default=1024)
+    p.add_argument("--bar-episodes", type=int, default=64)
+    p.add_argument("--curve-points", type=int, default=8)
+    p.add_argument("--curve-episodes", type=int, default=32)
+    p.add_argument("--kfixed-episodes", type=int, default=8)
+    args = p.parse_args(argv)
+    args.out = args.out or Path(f"runs/science-{args.character}")
+    parts = [s.strip() for s in args.only.split(",") if s.strip()]
+    bad = [s for s in parts if s not in PARTS]
+    if bad:
+        p.error(f"--only: unknown part(s) {', '.join(bad)}; parts: {', '.join(PARTS)}")
+    args.parts = parts
+    return args
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    import torch
+
+    torch.set_num_threads(available_cpus())
+    sci = Science(args)
+    if not sci.dataset.exists():
+        args.out.mkdir(parents=True, exist_ok=True)
+        save_subset(walking_subset(load_dataset(default_dataset(args.character))), sci.dataset)
+    sci.meta()
+    print(f"science: {args.character}, preset {args.preset}, parts {', '.join(args.parts)}")
+    print(f"machine: {sci.results['meta']['machine']}", flush=True)
+    if args.skip_train:  # the runs' own numbers, for the report
+        for key, run, label in (
+            ("train", sci.moppo, f"MOPPO (preset `{args.preset}` sampling)"),
+            ("ppo", sci.ppo, "fixed uniform (PPO)"),
+        ):
+            if RunDir(run).exists():
+                sci.results[key] = run_summary(run, label)
+    for part in PARTS:
+        if part not in args.parts or (part in ("train", "ppo") and args.skip_train):
+            continue
+        if sci.clock.left() <= 30:
+            sci.results["skipped"][part] = "the run's deadline came first"
+            print(f"[{part}] skipped: deadline", flush=True)
+            sci.save()
+            continue
+        began = time.perf_counter()
+        print(f"[{part}] {dt.datetime.now(dt.UTC):%H:%M:%S} UTC", flush=True)
+        try:
+            if part == "kfixed":
+                sci.part_kfixed(train_runs=not args.skip_train)
+            else:
+                getattr(sci, f"part_{part}")()
+        except Exception as exc:  # a failed part is reported; the others still run
+            sci.results["skipped"][part] = f"failed: {type(exc).__name__}: {exc}"
+            print(f"[{part}] FAILED: {exc!r}", flush=True)
+        else:
+            sci.results["skipped"].pop(part, None)
+            sci.results.setdefault("seconds", {})[part] = time.perf_counter() - began
+            print(f"[{part}] done in {time.perf_counter() - began:.0f} s", flush=True)
+        sci.save()
+    print(f"report: {args.doc}; results: {sci.json_path}")
+
+
+if __name__ == "__main__":
+    main()

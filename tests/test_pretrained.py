@@ -1,0 +1,134 @@
+"""Pretrained runs (``pretrained:NAME``), ``amorctl runs list`` and ``runs export-pretrained``.
+
+Entries are exported into a temporary folder listed in $AMORCTL_PRETRAINED_PATH (the package's own
+folder is never written by the tests)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from safetensors.numpy import load_file
+
+from amorctl.cli.main import main
+from amorctl.core.errors import AmorError
+from amorctl.train import pretrained
+from amorctl.train.pretrained_export import export_pretrained, wall_time_s
+from amorctl.train.rundir import RunDir
+
+
+def run_cli(capsys: pytest.CaptureFixture, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def shelf(tracking_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A folder of pretrained entries with ``tiny`` (the tracking_run fixture), on the search path."""
+    folder = tmp_path / "shelf"
+    export_pretrained(tracking_run, "tiny", folder, command="pytest fixture", description="a test entry",
+                      commit="abc123")  # fmt: skip
+    monkeypatch.setenv(pretrained.PATH_ENV, str(folder))
+    return folder
+
+
+def test_export_strips_training_state_and_keeps_the_policy(tracking_run: Path, shelf: Path) -> None:
+    entry = pretrained.resolve("pretrained:tiny")
+    assert entry.path == shelf / "tiny"
+    files = {p.relative_to(entry.path).as_posix() for p in entry.path.rglob("*") if p.is_file()}
+    assert {"config.toml", "card.json", "README.md", "dataset.mcap", "metrics.csv"} <= files
+    tensors = [f for f in files if f.endswith(".safetensors")]
+    assert len(tensors) == 1
+    keys = load_file(str(entry.path / tensors[0])).keys()
+    assert not [k for k in keys if "optimizer" in k or k.startswith("env/")]
+    assert any(k.startswith("trainer/actor") for k in keys)
+    ckpt_json = json.loads((entry.path / tensors[0].replace(".safetensors", ".json")).read_text())
+    assert ckpt_json["env"] is None and not [k for k in ckpt_json["trainer"] if k.startswith("optimizer")]
+    run, own = RunDir("pretrained:tiny"), RunDir(tracking_run)
+    a, b = run.policy(), own.policy()
+    obs = np.random.default_rng(1).normal(size=(5, a.obs_dim)).astype(np.float32)
+    np.testing.assert_array_equal(a(obs), b(obs))
+    np.testing.assert_array_equal(a.values(obs), b.values(obs))
+    card = entry.card
+    assert card["command"] == "pytest fixture" and card["commit"] == "abc123"
+    assert card["iteration"] == own.checkpoints()[-1][0] and card["objectives"] == list(b.objectives)
+    assert card["dataset"]["bytes"] == (entry.path / "dataset.mcap").stat().st_size
+
+
+def test_pretrained_rundir_is_read_only_and_finds_its_dataset(shelf: Path) -> None:
+    run = RunDir.open("pretrained:tiny")
+    assert run.read_only and run.label == "pretrained:tiny"
+    assert run.output_dir("pareto") == Path("tiny") / "pareto"
+    assert Path(run.config.env.dataset) == shelf / "tiny" / "dataset.mcap"  # relative to the entry
+    assert not RunDir(shelf).read_only and RunDir(shelf).output_dir("x") == shelf / "x"
+
+
+def test_unknown_pretrained_name_lists_the_known(shelf: Path) -> None:
+    with pytest.raises(AmorError, match=r"no such pretrained run \(have: tiny"):
+        RunDir("pretrained:nope")
+
+
+def test_export_refuses_existing_and_bad_names(tracking_run: Path, shelf: Path) -> None:
+    with pytest.raises(AmorError, match="already exists"):
+        export_pretrained(tracking_run, "tiny", shelf)
+    with pytest.raises(AmorError, match="--name"):
+        export_pretrained(tracking_run, "Bad Name", shelf)
+    before = (shelf / "tiny" / "card.json").read_text()
+    export_pretrained(tracking_run, "tiny", shelf, replace=True, command="again", commit="")
+    assert (shelf / "tiny" / "card.json").read_text() != before
+    assert not [p for p in shelf.iterdir() if p.name.startswith(".")]  # no temporary folder left
+
+
+def test_runs_list_pretrained_and_local(shelf: Path, tracking_run: Path, capsys) -> None:
+    code, out, err = run_cli(capsys, "runs", "list", "--pretrained", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    names = [e["name"] for e in doc["pretrained"]]
+    assert "tiny" in names
+    tiny = doc["pretrained"][names.index("tiny")]
+    assert tiny["reference"] == "pretrained:tiny" and tiny["command"] == "pytest fixture"
+    code, out, err = run_cli(capsys, "runs", "list", str(tracking_run.parent), "--json")
+    assert code == 0, err
+    runs = json.loads(out)["runs"]
+    assert [r["run"] for r in runs] == [str(tracking_run)] and runs[0]["character"] == "biped20"
+    assert runs[0]["iteration"] == RunDir(tracking_run).checkpoints()[-1][0]
+
+
+def test_pareto_on_pretrained_writes_to_the_current_folder(
+    shelf: Path, tmp_path, monkeypatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_cli(capsys, "pareto", "pretrained:tiny", "-k", "3", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["run"] == "pretrained:tiny" and len(doc["motions"][0]["points"]) == 3
+    assert (tmp_path / "tiny" / "pareto" / "pareto.json").is_file()
+    assert not (shelf / "tiny" / "pareto").exists()
+
+
+def test_training_into_a_pretrained_run_is_refused(shelf: Path, capsys) -> None:
+    code, _, err = run_cli(capsys, "train", "--resume", "--out", "pretrained:tiny")
+    assert code == 2 and "read-only" in err
+    assert sorted(p.name for p in (shelf / "tiny").iterdir()) == [
+        "README.md", "card.json", "checkpoints", "config.toml", "dataset.mcap", "metrics.csv",
+    ]  # fmt: skip
+
+
+def test_wall_time_adds_resumed_segments(tmp_path: Path) -> None:
+    path = tmp_path / "metrics.csv"
+    path.write_text("iteration,wall_time_s\n1,10.0\n2,20.0\n3,5.0\n4,7.5\n")
+    assert wall_time_s(path) == 27.5  # 20 s, then a resume that ran 7.5 s
+    assert np.isnan(wall_time_s(tmp_path / "missing.csv"))
+
+
+def test_package_folder_holds_no_fake_entry() -> None:
+    """Entries come from the folder's contents; the shipped ones come from real training runs."""
+    folder = pretrained.package_folder()
+    assert folder.is_dir() and (folder / "README.md").is_file()
+    for sub in folder.iterdir():
+        if sub.is_dir():
+            card = pretrained.read_card(sub)
+            assert card["command"] and card["env_steps"] > 0
