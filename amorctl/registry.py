@@ -132,6 +132,8 @@ def _build_lazy(lazy: LazyCharacter, plugin: str) -> CharacterSpec:
     try:
         spec = lazy.build()
     except AmorError as exc:
+        if f"character {lazy.name!r}" in str(exc):  # already names it (e.g. a missing model file)
+            raise
         raise AmorError(f"character {lazy.name!r} (plugin {plugin!r}): {exc}") from None
     except Exception as exc:  # the plugin's own code: report it, never a traceback
         raise AmorError(

@@ -10,6 +10,11 @@ training throughput of one jax-mjx iteration (fused rollout + update) after comp
     python benchmarks/backend_throughput.py --characters biped20 --envs 256 --steps 20
     python benchmarks/backend_throughput.py --envs 4096 16384 --train --skip-torch   # a GPU (gpu.sh)
 
+Every measurement runs in its own Python process (``--one``), with a time limit: one backend's
+threads never share a process with the other's (an earlier in-process version stalled in the
+jax-mjx row, asleep on a futex after the torch-cpu row, see docs/backends.md), and a stall shows
+as a ``timeout`` row instead of a hung benchmark.
+
 Run it under the shared lock on the CPU machines (``flock /tmp/amorctl-heavy.lock ...``).
 Results and protocol: docs/backends.md.
 """
@@ -18,6 +23,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -76,6 +83,32 @@ def train_throughput(character: str, n: int, iterations: int) -> dict[str, float
     }
 
 
+def measure(args: argparse.Namespace) -> dict[str, float | str | int]:
+    """The row of ``--one CHARACTER ENVS BACKEND`` (in this process)."""
+    character, n, backend = args.one[0], int(args.one[1]), args.one[2]
+    row: dict[str, float | str | int] = {"character": character, "envs": n, "backend": backend}
+    row.update(env_throughput(character, n, backend, args.steps))
+    if backend == "jax-mjx" and args.train:
+        row.update(train_throughput(character, n, args.iterations))
+    return row
+
+
+def run_isolated(args: argparse.Namespace, character: str, n: int, backend: str) -> dict[str, object]:
+    """One measurement in a fresh Python process; a ``timeout``/``error`` row when it fails."""
+    command = [sys.executable, __file__, "--one", character, str(n), backend, "--steps", str(args.steps),
+               "--iterations", str(args.iterations)] + ["--train"] * args.train  # fmt: skip
+    row: dict[str, object] = {"character": character, "envs": n, "backend": backend}
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(command, capture_output=True, text=True, timeout=args.timeout)
+    except subprocess.TimeoutExpired:
+        return {**row, "status": f"timeout after {args.timeout:.0f} s"}
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        return {**row, "status": "error: " + (proc.stderr.strip().splitlines() or ["?"])[-1]}
+    return {**json.loads(lines[-1]), "status": "ok", "process_s": time.perf_counter() - t0}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--characters", nargs="+", default=["biped20", "humanoid36"])
@@ -85,7 +118,12 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=3, help="timed training iterations")
     parser.add_argument("--skip-torch", action="store_true", help="only jax-mjx (a GPU machine)")
     parser.add_argument("--json", action="store_true", help="one JSON line per row")
+    parser.add_argument("--timeout", type=float, default=900.0, help="seconds per measurement process")
+    parser.add_argument("--one", nargs=3, metavar=("CHARACTER", "ENVS", "BACKEND"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.one:  # a child: one measurement, one JSON line
+        print(json.dumps(measure(args)), flush=True)
+        return
 
     import jax
 
@@ -95,24 +133,24 @@ def main() -> None:
         for n in args.envs:
             backends = ["jax-mjx"] if args.skip_torch else ["torch-cpu", "jax-mjx"]
             for backend in backends:
-                row: dict[str, float | str | int] = {"character": character, "envs": n, "backend": backend}
-                row.update(env_throughput(character, n, backend, args.steps))
-                if backend == "jax-mjx" and args.train:
-                    row.update(train_throughput(character, n, args.iterations))
+                row = run_isolated(args, character, n, backend)
+                if args.json:
+                    print(json.dumps(row), flush=True)
+                    continue
+                if row["status"] != "ok":
+                    print(f"{character:<11} {n:>6} {backend:<10} {row['status']}", flush=True)
+                    continue
                 extra = (
                     f"train {row['train_steps_per_s']:.0f} steps/s (first iteration "
                     f"{row['train_first_iteration_s']:.0f} s)"
                     if "train_steps_per_s" in row
                     else ""
                 )
-                if args.json:
-                    print(json.dumps(row))
-                else:
-                    print(
-                        f"{character:<11} {n:>6} {backend:<10} {row['steps_per_s']:>10.0f} "
-                        f"{row['first_call_s']:>13.1f}  {extra}",
-                        flush=True,
-                    )
+                print(
+                    f"{character:<11} {n:>6} {backend:<10} {row['steps_per_s']:>10.0f} "
+                    f"{row['first_call_s']:>13.1f}  {extra}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

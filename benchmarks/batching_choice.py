@@ -40,7 +40,7 @@ def states_of(character: str, n: int) -> tuple[BatchSim, np.ndarray, np.ndarray,
         env.step(lib.joint_pos[env.ref_idx + 1])
     sim = env.sim
     ctrl = np.zeros((n, sim.model.nu))
-    ctrl[:, sim.actuators] = sim.ctrl[:, 0, sim.actuators] if not sim.servo else sim.torque[:, -1]
+    ctrl[:, sim.actuators] = sim.ctrl[:, 0, sim.actuators] if not sim.python_servo else sim.torque[:, -1]
     return sim, sim.state.copy(), sim.warmstart.copy(), ctrl
 
 

@@ -29,6 +29,7 @@ from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
 from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
+from amorctl.sim.cpus import available_cpus
 
 
 def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -> float:
@@ -55,6 +56,37 @@ def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -
     return best
 
 
+class _Setting:
+    """One env under measurement: its best window rate, the single-thread bound, time shares."""
+
+    def __init__(self, env: TrackingEnv, lib: object, rng: np.random.Generator) -> None:
+        self.env, self.lib, self.rng = env, lib, rng
+        self.best = self.single = self.sim_time = self.total = 0.0
+        self.steps = self.resets = 0
+        sim_step = env.sim.step
+
+        def timed_sim_step(target: np.ndarray) -> object:  # physics + actuator model, for the share
+            t = time.perf_counter()
+            out = sim_step(target)
+            self.sim_time += time.perf_counter() - t
+            return out
+
+        env.sim.step = timed_sim_step  # type: ignore[method-assign]
+
+    def window(self, steps: int = 5) -> None:
+        """Time ``steps`` env steps (reference targets + 0.05 rad noise, the "policy")."""
+        env, n = self.env, self.env.num_envs
+        noise = 0.05 * self.rng.standard_normal((steps, n, env.action_dim))
+        t0 = time.perf_counter()
+        for step_noise in noise:
+            _, _, term, trunc, _ = env.step(self.lib.joint_pos[env.ref_idx + 1] + step_noise)  # type: ignore[attr-defined]
+            self.resets += int(term.sum() + trunc.sum())
+        elapsed = time.perf_counter() - t0
+        self.best = max(self.best, steps * n / elapsed)
+        self.total += elapsed
+        self.steps += steps
+
+
 def measure(
     character: str,
     num_envs: int,
@@ -62,13 +94,16 @@ def measure(
     seconds: float,
     clips: str = "synthetic",
     seed: int = 0,
-    servo_model: str = "native",
-) -> dict[str, float]:
-    """Env steps/s and the ratio for one setting.
+    servo_models: tuple[str, ...] = ("native",),
+) -> dict[str, dict[str, float]]:
+    """Env steps/s and the ratio for one character and batch size, per servo model.
 
     ``clips``: ``"synthetic"`` (swaying clips, no data needed) or ``"builtin"`` (the character's
     preprocessed DeepMimic dataset from the user cache; built on first use, which takes minutes).
-    ``servo_model``: ``"native"`` or ``"python"`` (servo characters; see the module docstring).
+    ``servo_models``: ``"native"`` and/or ``"python"`` (servo characters; PD characters measure
+    one setting). The settings are timed alternately, window by window, for ``seconds`` each, so
+    that load from other processes hits them alike; every rate is a best-of (other processes only
+    ever slow a window down).
     """
     ch = get_registry().character(character)
     if clips == "builtin":
@@ -78,88 +113,74 @@ def measure(
         lib = load_dataset(default_dataset(character))
     else:
         lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=seed)
-    env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=seed, max_episode_steps=200)
-    if ch.actuator.kind == "servo" and servo_model != "native":  # the reference servo, for comparison
-        env.sim.close()
-        env.sim = BatchSim(ch, num_envs, nthread=nthread, servo_model=servo_model)  # type: ignore[arg-type]
-    rng = np.random.default_rng(seed)
-    env.reset(seed=seed)
-
-    def act() -> np.ndarray:
-        return lib.joint_pos[env.ref_idx + 1] + 0.05 * rng.standard_normal((num_envs, env.action_dim))
-
-    for _ in range(5):
-        env.step(act())
-    base_before = single_thread_rate(env)
-    # Time windows of a few steps and keep the best: other processes on a shared machine only
-    # ever slow a window down, and the single-thread rate is a best-of as well.
-    sim_step = env.sim.step
-    sim_time = [0.0]
-
-    def timed_sim_step(target: np.ndarray) -> object:  # physics + actuator model, for the share
-        t = time.perf_counter()
-        out = sim_step(target)
-        sim_time[0] += time.perf_counter() - t
-        return out
-
-    env.sim.step = timed_sim_step  # type: ignore[method-assign]
-    steps, resets, best, t_start = 0, 0, 0.0, time.perf_counter()
-    while time.perf_counter() - t_start < seconds or steps < 10:
-        window = 0.05 * rng.standard_normal((5, num_envs, env.action_dim))
-        t0 = time.perf_counter()
-        for noise in window:  # reference targets + noise, the "policy"
-            _, _, term, trunc, _ = env.step(lib.joint_pos[env.ref_idx + 1] + noise)
-            resets += int(term.sum() + trunc.sum())
-        best = max(best, len(window) * num_envs / (time.perf_counter() - t0))
-        steps += len(window)
-    total = time.perf_counter() - t_start
-    base_after = single_thread_rate(env)
-    env.close()
-    rate = best
-    single = max(base_before, base_after)
-    ideal = single / ch.substeps * nthread
-    return {
-        "env_steps_per_s": rate,
-        "single_thread_physics_per_s": single,
-        "ideal_env_steps_per_s": ideal,
-        "resets_per_step": resets / steps,
-        "physics_share": sim_time[0] / total,
-        "ratio": rate / ideal,
-    }
+    models = servo_models if ch.actuator.kind == "servo" else ("native",)
+    settings = {}
+    for model in models:
+        env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=seed, max_episode_steps=200)
+        if model != "native":  # the reference servo, for comparison
+            env.sim.close()
+            env.sim = BatchSim(ch, num_envs, nthread=nthread, servo_model=model)  # type: ignore[arg-type]
+        env.reset(seed=seed)
+        for _ in range(5):
+            env.step(lib.joint_pos[env.ref_idx + 1])
+        settings[model] = _Setting(env, lib, np.random.default_rng(seed))
+    t_start = time.perf_counter()
+    while (
+        time.perf_counter() - t_start < seconds * len(settings)
+        or min(s.steps for s in settings.values()) < 10
+    ):
+        for setting in settings.values():
+            setting.window()
+            setting.single = max(setting.single, single_thread_rate(setting.env, samples=16, repeats=1))
+    out = {}
+    for model, st in settings.items():
+        st.single = max(st.single, single_thread_rate(st.env))
+        st.env.close()
+        ideal = st.single / ch.substeps * nthread
+        out[model] = {
+            "env_steps_per_s": st.best,
+            "single_thread_physics_per_s": st.single,
+            "ideal_env_steps_per_s": ideal,
+            "resets_per_step": st.resets / st.steps,
+            "physics_share": st.sim_time / st.total,
+            "ratio": st.best / ideal,
+        }
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--characters", nargs="+", default=["humanoid36", "biped20"])
     parser.add_argument("--envs", nargs="+", type=int, default=[256, 1024])
-    parser.add_argument("--nthread", type=int, default=2)
-    parser.add_argument("--seconds", type=float, default=4.0, help="timed seconds per setting")
+    parser.add_argument("--nthread", type=int, default=available_cpus(), help="default: the affinity's cores")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=4.0,
+        help="timed seconds per setting (settings alternate window by window)",
+    )
     parser.add_argument("--clips", choices=["synthetic", "builtin"], default="synthetic")
     parser.add_argument(
         "--servo-models", nargs="+", choices=["native", "python"], default=["native", "python"],
         help="servo implementations to measure for servo characters",
     )  # fmt: skip
     args = parser.parse_args()
-    registry = get_registry()
     for character in args.characters:
-        servo = registry.character(character).actuator.kind == "servo"
         for n in args.envs:
-            for model in args.servo_models if servo else ["native"]:
-                report(character, n, model if servo else "", args)
-
-
-def report(character: str, n: int, servo_model: str, args: argparse.Namespace) -> None:
-    """Measure one setting and print its line."""
-    r = measure(character, n, args.nthread, args.seconds, args.clips, servo_model=servo_model or "native")
-    label = f"{character}/{servo_model}" if servo_model else character
-    print(
-        f"{label:<18} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
-        f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
-        f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
-        f"resets/step: {r['resets_per_step']:.2f}  physics share: {r['physics_share']:.0%}  "
-        f"ratio: {r['ratio']:.2f}",
-        flush=True,
-    )
+            results = measure(
+                character, n, args.nthread, args.seconds, args.clips, servo_models=tuple(args.servo_models)
+            )
+            servo = get_registry().character(character).actuator.kind == "servo"
+            for model, r in results.items():
+                label = f"{character}/{model}" if servo else character
+                print(
+                    f"{label:<18} envs: {n:5d}  env steps/s: {r['env_steps_per_s']:8.0f}  "
+                    f"1-thread mj_step/s: {r['single_thread_physics_per_s']:8.0f}  "
+                    f"ideal ({args.nthread} threads): {r['ideal_env_steps_per_s']:8.0f}  "
+                    f"resets/step: {r['resets_per_step']:.2f}  physics share: {r['physics_share']:.0%}  "
+                    f"ratio: {r['ratio']:.2f}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ only the lever changed, and is then evaluated with ``evaluate --sweep`` for each
 sharing the rest, deterministic policy, 10 s episodes from the clips' first frames). The
 ``paper`` variant (no lever) continues the run the same way, so the comparison isolates the lever
 from the extra training. A lever whose state the base checkpoint lacks (the return scale, the
-adaptive sampler's per-env bookkeeping) starts from a fresh trainer's values.
+adaptive sampler's per-env bookkeeping) starts from a fresh trainer's values; every variant
+starts from fresh episodes (the base's env state is not carried over).
 
 Usage (each step is a separate command so the shared lock is held briefly):
   python benchmarks/moppo_levers.py prepare --base runs/b20walk --variant mix --iterations 100
@@ -72,10 +73,12 @@ def prepare(base: Path, variant: str, iterations: int, out: Path) -> int:
     try:
         trainer = backend.make_trainer(env, config)
         trainer_state = _fill_missing(ckpt.trainer, trainer.state_dict())
-        env_state = _fill_missing(ckpt.env, env.get_state()) if ckpt.env is not None else None
     finally:
         env.close()
-    save_checkpoint(out / "checkpoints", ckpt.iteration, dict(ckpt.meta), trainer_state, env_state)
+    # without the env state the run continues from fresh episodes (seeded with seed + iteration),
+    # so every variant starts alike, with its own sampler's draws, and a base run made before a
+    # change of the simulator's state layout can still be continued
+    save_checkpoint(out / "checkpoints", ckpt.iteration, dict(ckpt.meta), trainer_state, None)
     return ckpt.iteration + iterations
 
 

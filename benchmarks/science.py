@@ -190,18 +190,17 @@ class Science:
     # -- config and runs
     def base_config(self, **changes: Any) -> TrainConfig:
         a = self.args
-        return override(
-            load_preset(a.preset),
-            env__character=a.character,
-            env__dataset=str(self.dataset),
-            env__num_envs=a.num_envs or load_preset(a.preset).env.num_envs,
-            run__seed=a.seed,
-            run__iterations=1_000_000,
-            run__checkpoint_every=a.checkpoint_every,
-            run__keep_checkpoints=0,
-            run__threads=available_cpus(),
-            **changes,
-        )
+        fields: dict[str, Any] = {
+            "env__character": a.character,
+            "env__dataset": str(self.dataset),
+            "env__num_envs": a.num_envs or load_preset(a.preset).env.num_envs,
+            "run__seed": a.seed,
+            "run__iterations": 1_000_000,
+            "run__checkpoint_every": a.checkpoint_every,
+            "run__keep_checkpoints": 0,
+            "run__threads": available_cpus(),
+        }
+        return override(load_preset(a.preset), **{**fields, **changes})
 
     def moppo_iterations(self) -> int:
         return RunDir.open(self.moppo).checkpoints()[-1][0]
@@ -217,6 +216,7 @@ class Science:
 
     def meta(self) -> None:
         a = self.args
+        other = "humanoid36" if a.character == "biped20" else "biped20"
         base = (
             f"python benchmarks/science.py --character {a.character} --preset {a.preset} "
             f"--budget-minutes {a.budget_minutes:g} --out {self.out}"
@@ -239,8 +239,8 @@ class Science:
                 "bar": base + " --skip-train --only bar",
                 "curves": base + " --only ppo,curves",
                 "kfixed": base + " --only kfixed",
-                "humanoid36": base.replace(f"--character {a.character}", "--character humanoid36").replace(
-                    str(self.out), "runs/science-humanoid36"
+                "other_character": base.replace(f"--character {a.character}", f"--character {other}").replace(
+                    str(self.out), f"runs/science-{other}"
                 ),
             },
         }
@@ -476,6 +476,7 @@ def plot_curves(rows: list[dict[str, Any]], path: Path, character: str) -> bool:
         axes[1].plot(x, [r[key]["survival"] for r in rows], style, label=label)
     axes[0].set_ylabel("scalarized return w·J (10 s episode)")
     axes[1].set_ylabel("survival over 10 s")
+    axes[1].set_ylim(-0.03, 1.03)
     for ax in axes:
         ax.set_xlabel("env steps (millions)")
         ax.grid(alpha=0.3)
@@ -503,6 +504,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC; stop training / skip parts then")
     p.add_argument(
         "--reserve-minutes", type=float, default=4.0, help="PPO training ends this long before --deadline"
+    )
+    p.add_argument(
+        "--skip-reason",
+        default="not selected with --only",
+        help="reported for parts not run and not measured",
     )
     p.add_argument("--seed", type=int, default=0, help="training seed")
     p.add_argument("--eval-seed", type=int, default=1)
@@ -566,6 +572,10 @@ def main(argv: list[str] | None = None) -> None:
             sci.results.setdefault("seconds", {})[part] = time.perf_counter() - began
             print(f"[{part}] done in {time.perf_counter() - began:.0f} s", flush=True)
         sci.save()
+    for part in PARTS:
+        if part not in args.parts and part not in sci.results:
+            sci.results["skipped"][part] = args.skip_reason
+    sci.save()
     print(f"report: {args.doc}; results: {sci.json_path}")
 
 

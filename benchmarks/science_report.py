@@ -162,7 +162,7 @@ def _f(x: Any, digits: int = 3) -> str:
         return "yes" if x else "no"
     if isinstance(x, int):
         return f"{x:,}"
-    return f"{x:.{digits}g}" if abs(x) < 1e4 else f"{x:,.0f}"
+    return f"{x:.{digits}g}" if abs(x) < 1e3 else f"{x:,.0f}"
 
 
 def _verdict(ok: bool | None) -> str:
@@ -209,6 +209,9 @@ def render_markdown(results: dict[str, Any], protocol: str) -> str:
     lines += _ppo_section(results)
     lines += _kfixed_section(results)
     lines += _bar_section(results)
+    other = meta.get("rerun", {}).get("other_character")
+    if other:
+        lines += ["## Other characters", "", f"Not measured in this run. The same protocol: `{other}`", ""]
     return "\n".join(lines).rstrip() + "\n"
 
 

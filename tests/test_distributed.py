@@ -306,6 +306,53 @@ def test_per_env_seeds_make_every_tracking_env_independent_of_its_batch() -> Non
     assert not np.array_equal(start, big.tracking_view().reference_index())  # the seeds matter
 
 
+@pytest.mark.slow
+def test_per_env_seeds_give_the_jax_mjx_env_per_env_keys() -> None:
+    """jax-mjx: [N] seeds become one key per env, so RSI and every later clip draw of an env are
+    the same in a batch of 6 and one of 3 (its physics is compared with torch-cpu elsewhere)."""
+    pytest.importorskip("jax")
+    pytest.importorskip("mujoco.mjx")
+    import jax
+
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.plugins.backends.jax_mjx.core import _split
+    from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
+    from amorctl.registry import get_registry
+
+    ch = get_registry().character("biped20")
+    lib = synthetic_library(ch, num_clips=3, seconds=0.3, seed=3)
+    big, small = (MjxTrackingEnv(ch, lib, num_envs=n, max_episode_steps=12) for n in (6, 3))
+    ob, _ = big.reset(seed=SEEDS)
+    os_, _ = small.reset(seed=SEEDS[SUB])
+    np.testing.assert_array_equal(ob[SUB], os_)
+    np.testing.assert_array_equal(np.asarray(big.state.key)[SUB], small.state.key)
+    keys = [big.state.key, small.state.key]
+    for _ in range(3):  # the clip draws of three steps (switches and resets)
+        drawn = []
+        for i, env in enumerate((big, small)):
+            keys[i], k_clip = _split(keys[i], 2)
+            drawn.append([np.asarray(x) for x in jax.jit(env.core._start_clips)(k_clip, env.sel, False)])
+        for x, y in zip(*drawn, strict=True):
+            np.testing.assert_array_equal(x[SUB], y)
+    assert len(set(np.asarray(drawn[0][0]).tolist())) > 1  # the envs draw different clips
+    with pytest.raises(AmorError, match="per-env seeds"):
+        small.reset(seed=SEEDS)
+
+
+def test_sweeps_call_the_policy_on_fixed_shape_blocks() -> None:
+    from amorctl.analysis.sweeps import fixed_shape_policy
+
+    shapes: list[tuple[int, ...]] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        shapes.append(obs.shape)
+        return obs[:, :1] * 2
+
+    x = np.arange(22.0).reshape(11, 2)
+    np.testing.assert_array_equal(fixed_shape_policy(policy, rows=4)(x), x[:, :1] * 2)
+    assert shapes == [(4, 2)] * 3
+
+
 def test_rank_rows_cover_every_row_once_in_order() -> None:
     for count in (0, 1, 7, 10):
         for size in (1, 2, 3):
@@ -400,29 +447,13 @@ def json_docs(text: str) -> list[dict]:
     return docs
 
 
-def assert_same_numbers(a: object, b: object, where: str = "") -> None:
-    """``a`` and ``b`` (JSON) have the same structure, flags and strings, and numbers within 1e-6
-    (absolute, or relative above 1)."""
-    if isinstance(a, dict):
-        assert isinstance(b, dict) and a.keys() == b.keys(), where
-        for key in a:
-            assert_same_numbers(a[key], b[key], f"{where}/{key}")
-    elif isinstance(a, list):
-        assert isinstance(b, list) and len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            assert_same_numbers(x, y, f"{where}[{i}]")
-    elif isinstance(a, float) and not isinstance(b, bool):
-        assert isinstance(b, (int, float)) and abs(a - b) <= 1e-6 * max(1.0, abs(a)), (where, a, b)
-    else:
-        assert a == b, (where, a, b)
-
-
 def test_two_rank_sweeps_equal_the_one_process_sweeps(
     tmp_path: Path, toy_run: Path, capsys: pytest.CaptureFixture
 ) -> None:
     """``amorctl pareto`` and ``evaluate --sweep`` on 2 ranks (uneven blocks: 8 + 7 weight
-    vectors, 3 + 2 episodes per level) give the 1-process command's front and returns: every
-    episode is seeded by (seed, its sample / episode index), never by its batch position."""
+    vectors, 3 + 2 episodes per level) give the 1-process command's front and returns bit for
+    bit: every episode is seeded by (seed, its sample / episode index), never by its batch
+    position, and the policy runs on fixed-shape blocks (docs/distributed.md)."""
     from amorctl.cli.main import main
 
     torch.set_num_threads(1)
@@ -441,9 +472,9 @@ def test_two_rank_sweeps_equal_the_one_process_sweeps(
     pareto_doc, evaluate_doc = json_docs((tmp_path / "rank0.out").read_text())
     assert json.loads((tmp_path / "p/pareto.json").read_text())["motions"] == pareto_doc["motions"]
     assert pareto_doc["weights"] == pareto_one["weights"] and len(pareto_doc["weights"]) == SWEEP_K
-    # the same front: every row's returns, spreads, survival, the equal-weights point, the
-    # non-dominated flags, hypervolume, expected utility and sparsity
-    assert_same_numbers(pareto_doc["motions"], pareto_one["motions"], "pareto")
+    # the same front, bit for bit: every row's returns, spreads, survival, the equal-weights
+    # point, the non-dominated flags, hypervolume, expected utility and sparsity
+    assert pareto_doc["motions"] == pareto_one["motions"]
     (front,) = pareto_doc["motions"]
     assert any(front["non_dominated"]) and not all(front["non_dominated"])  # a real front
     assert pareto_doc["timing"]["num_envs"] == pareto_one["timing"]["num_envs"] + SWEEP_E  # + rank 1's 1/m
@@ -456,11 +487,9 @@ def test_two_rank_sweeps_equal_the_one_process_sweeps(
     sweep, sweep_one = evaluate_doc["sweep"], evaluate_one["sweep"]
     assert evaluate_doc["settings"] and Path(sweep["figure"]).is_file()
     assert np.array(sweep["returns"]).shape == (5, SWEEP_LEVEL_E)
-    assert_same_numbers(
-        {k: v for k, v in sweep.items() if k != "figure"},
-        {k: v for k, v in sweep_one.items() if k != "figure"},
-        "sweep",
-    )
+    assert {k: v for k, v in sweep.items() if k != "figure"} == {
+        k: v for k, v in sweep_one.items() if k != "figure"
+    }
 
 
 def _long_run(tmp_path: Path) -> None:

@@ -347,3 +347,76 @@ def test_two_device_update_equals_the_one_device_update() -> None:
     for key, value in one["params"].items():
         np.testing.assert_allclose(np.array(two["params"][key]), np.array(value), atol=1e-5, err_msg=key)
     assert "'envs': 2" in two["sharding"] and "spec=P()" in two["sharding"]  # replicated parameters
+
+
+MULTI_PROCESS_SCRIPT = r"""
+import json, os
+import jax
+from amorctl.core.config import TrainConfig, override
+from amorctl.envs.toy import ToyTradeoffEnv
+from amorctl.plugins.backends.jax_mjx import JaxMjxBackend
+from amorctl.plugins.backends.jax_mjx.networks import params_to_arrays
+
+config = override(
+    TrainConfig(), env__kind="toy", env__num_envs=32, network__actor_hidden=[16, 16],
+    network__critic_hidden=[16, 16], ppo__num_steps=8, ppo__num_epochs=2, ppo__num_minibatches=3,
+    ppo__learning_rate=3e-3, run__tensorboard=False,
+)
+trainer = JaxMjxBackend().make_trainer(ToyTradeoffEnv(32, max_steps=20, seed=0), config)
+metrics = trainer.iteration()
+print(json.dumps({
+    "processes": jax.process_count(), "process": jax.process_index(), "devices": jax.device_count(),
+    "local": jax.local_device_count(), "loss": metrics["loss/total"],
+    "params": {k: v.tolist() for k, v in params_to_arrays(trainer.params).items()},
+}))
+"""
+
+
+@pytest.mark.slow
+def test_two_processes_give_the_one_process_two_device_update() -> None:
+    """Multi-host on loopback: 2 JAX processes (one CPU device each, gloo collectives, coordinator
+    127.0.0.1) joined by ``AMORCTL_JAX_DISTRIBUTED=1`` end one training iteration with identical
+    parameters, equal to 1 process with 2 devices on the same total batch within 1e-5."""
+    import json
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    base["JAX_PLATFORMS"] = "cpu"
+    procs = []
+    for pid in range(2):
+        env = dict(
+            base, AMORCTL_JAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
+            JAX_NUM_PROCESSES="2", JAX_PROCESS_ID=str(pid),
+        )  # fmt: skip
+        procs.append(
+            subprocess.Popen(
+                [sys.executable, "-c", MULTI_PROCESS_SCRIPT],
+                env=env,
+                text=True,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+            )
+        )
+    one = dict(base, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    command = [sys.executable, "-c", MULTI_PROCESS_SCRIPT]
+    ref = subprocess.run(command, env=one, capture_output=True, text=True, timeout=300)
+    outs = []
+    for proc in procs:
+        stdout, stderr = proc.communicate(timeout=300)
+        assert proc.returncode == 0, stderr[-3000:]
+        outs.append(json.loads(stdout.strip().splitlines()[-1]))
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    single = json.loads(ref.stdout.strip().splitlines()[-1])
+    assert single["processes"] == 1 and single["devices"] == 2
+    assert [o["process"] for o in outs] == [0, 1]
+    assert all(o["processes"] == 2 and o["devices"] == 2 and o["local"] == 1 for o in outs)
+    for key, value in outs[0]["params"].items():
+        assert outs[1]["params"][key] == value, key  # identical in both processes
+        np.testing.assert_allclose(np.array(value), np.array(single["params"][key]), atol=1e-5, err_msg=key)
+    np.testing.assert_allclose(outs[0]["loss"], single["loss"], rtol=1e-5, atol=1e-6)

@@ -263,3 +263,14 @@ def test_levers_are_refused_where_they_are_not_implemented() -> None:
         tiny_config(run__backend="jax-mjx", ppo__return_norm="value")
     with pytest.raises(AmorError, match="exceed 1"):
         tiny_config(env__kind="tracking", weights__corner_fraction=0.6, weights__axis_fraction=0.6)
+
+
+def test_science_preset_is_quick_plus_the_levers() -> None:
+    import dataclasses
+
+    from amorctl.core.config import WeightsConfig, load_preset
+
+    quick, science = load_preset("quick"), load_preset("science")
+    assert dataclasses.replace(science, weights=WeightsConfig(), ppo=quick.ppo) == quick
+    assert dataclasses.replace(science.ppo, return_norm="off") == quick.ppo
+    assert not science.weights.plain and science.ppo.return_norm != "off"

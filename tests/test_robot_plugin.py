@@ -318,3 +318,80 @@ def test_npz_whose_joints_cannot_be_matched(
     )
     assert code == 2 and err.count("\n") == 1
     assert re.search(r"shuffled\.npz: no joint_names.*error \d+\.\d+ m \(body 'left_hand_link'", err)
+
+
+# ---------------------------------------------------------------------------- lazy model paths
+
+
+def test_model_paths_from_other_packages_resolve_on_first_use_not_at_registration(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """A spec whose ``mjcf_path`` is a callable, and a ``LazyCharacter`` (the T1 built by
+    ``character_from_mjcf`` from its package on first use), are registered without resolving
+    anything; listing works when a model is missing; using that character is one error line."""
+    import amorctl.registry as reg
+    from amorctl.api import LazyCharacter, hookimpl, package_model
+
+    base = reg.get_registry().character("biped20")
+    calls = {"path": 0, "build": 0, "ghost": 0}
+
+    def biped_model() -> Path:
+        calls["path"] += 1
+        return base.mjcf_path
+
+    def build_t1():
+        calls["build"] += 1
+        return t1_spec(package_model(PACKAGE, *T1_XML), name="t1_lazy")
+
+    def build_ghost():
+        calls["ghost"] += 1
+        return t1_spec(package_model("no_such_robot_models", "ghost", "ghost.xml"), name="ghost_mjcf")
+
+    lazy_path = dataclasses.replace(base, name="lazy_biped", mjcf_path=biped_model)
+    missing = dataclasses.replace(
+        base, name="ghost", mjcf_path=package_model("no_such_robot_models", "g.xml")
+    )
+
+    class RobotsPlugin:
+        @hookimpl
+        def amorctl_register_characters(self, register) -> None:
+            register(lazy_path)
+            register(missing)
+            register(LazyCharacter("t1_lazy", build_t1))
+            register(LazyCharacter("ghost_mjcf", build_ghost))
+
+    registry = reg.load_registry(extra_plugins=[("robots", RobotsPlugin(), "robots", "1.0")])
+    assert calls == {"path": 0, "build": 0, "ghost": 0}  # registration resolved nothing
+    assert not lazy_path.model_resolved and callable(lazy_path.model_source)
+    monkeypatch.setattr(reg, "_CACHED", registry)
+
+    code, out, err = run(capsys, "plugins", "--json")
+    assert code == 0, err
+    assert {"lazy_biped", "ghost", "t1_lazy", "ghost_mjcf"} <= {p["name"] for p in json.loads(out)["plugins"]}
+    code, out, err = run(capsys, "characters", "list", "--json")
+    assert code == 0, err
+    listed = json.loads(out)
+    assert {"lazy_biped", "ghost"} <= {c["name"] for c in listed["characters"]}
+    assert "no_such_robot_models" in listed["unavailable"]["ghost_mjcf"]
+    assert calls["path"] == 0  # listing reads no model path
+
+    code, out, err = run(capsys, "characters", "show", "lazy_biped", "--json")
+    assert code == 0, err
+    assert json.loads(out)["mjcf"] == str(base.mjcf_path) and calls["path"] == 1
+    assert run(capsys, "characters", "show", "lazy_biped")[0] == 0 and calls["path"] == 1  # resolved once
+
+    for name, package in (("ghost", "no_such_robot_models"), ("ghost_mjcf", "no_such_robot_models")):
+        code, out, err = run(capsys, "characters", "show", name)
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+        assert lines[0].startswith("error: ") and f"character {name!r}" in lines[0] and package in lines[0]
+    assert calls["ghost"] == 2  # a failed build is retried on the next use, not cached
+
+    try:
+        package_file(PACKAGE, *T1_XML)
+    except AmorError:
+        return  # the T1 package is not installed: its lazy character is the missing-model case
+    code, out, err = run(capsys, "characters", "show", "t1_lazy", "--json")
+    assert code == 0, err
+    assert json.loads(out)["name"] == "t1_lazy" and calls["build"] == 1  # built by `list`, then cached
+    assert json.loads(out)["mjcf"] == str(package_file(PACKAGE, *T1_XML))

@@ -396,6 +396,22 @@ class SurvivorFront:
     non_dominated: np.ndarray
     summary: FrontSummary | None
 
+    def to_dict(self, points: np.ndarray) -> dict[str, Any]:
+        """The ``survivors`` object of pareto.json (docs/pareto.md); ``points`` [K, m] are the
+        survivors' means (NaN rows become rows of None)."""
+        s = self.summary
+        rows = np.asarray(points, dtype=np.float64)
+        return {
+            "count": int(self.survived.sum()),
+            "fallen": int((~self.survived).sum()),
+            "points": [[float(v) if math.isfinite(v) else None for v in row] for row in rows],
+            "non_dominated": [bool(v) for v in self.non_dominated],
+            "non_dominated_fraction": None if s is None else s.non_dominated_fraction,
+            "hypervolume": None if s is None else s.hypervolume.to_dict(),
+            "expected_utility": None if s is None else s.expected_utility,
+            "sparsity": None if s is None else s.sparsity,
+        }
+
 
 def survivor_means(returns: np.ndarray, survived: np.ndarray) -> np.ndarray:
     """[K, m] mean return over each weight vector's surviving episodes (NaN rows where all fell).

@@ -278,7 +278,7 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
                 "hypervolume": s.hypervolume.to_dict(),
                 "expected_utility": s.expected_utility,
                 "sparsity": s.sparsity,
-                "survivors": _survivors_dict(grp),
+                "survivors": grp.survivors.to_dict(grp.survivor_points),
             }
         )
     return {
@@ -293,22 +293,6 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
         "timing": {"num_envs": sweep.num_envs, "env_steps": sweep.env_steps, "seconds": sweep.seconds},
         "files": files or {},
         **sweep.meta,
-    }
-
-
-def _survivors_dict(grp: ParetoGroup) -> dict[str, Any]:
-    """The ``survivors`` object of a motion in pareto.json (docs/pareto.md)."""
-    sv = grp.survivors
-    s = sv.summary
-    return {
-        "count": int(sv.survived.sum()),
-        "fallen": int((~sv.survived).sum()),
-        "points": _floats(grp.survivor_points),
-        "non_dominated": [bool(v) for v in sv.non_dominated],
-        "non_dominated_fraction": None if s is None else s.non_dominated_fraction,
-        "hypervolume": None if s is None else s.hypervolume.to_dict(),
-        "expected_utility": None if s is None else s.expected_utility,
-        "sparsity": None if s is None else s.sparsity,
     }
 
 

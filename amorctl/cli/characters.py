@@ -20,7 +20,12 @@ app = typer.Typer(help="Inspect the installed characters.", no_args_is_help=True
 def list_characters(json_out: JsonFlag = False) -> None:
     """List installed characters with their DoF counts and rates."""
     registry = get_registry()
-    specs = [registry.character(n) for n in registry.names("character")]
+    specs, unavailable = [], {}
+    for n in registry.names("character"):
+        try:  # a lazily built character whose model is missing is listed, not fatal
+            specs.append(registry.character(n))
+        except AmorError as exc:
+            unavailable[n] = str(exc)
     if json_out:
         print_json(
             {
@@ -33,7 +38,8 @@ def list_characters(json_out: JsonFlag = False) -> None:
                         "control_hz": s.control_hz,
                     }
                     for s in specs
-                ]
+                ],
+                "unavailable": unavailable,
             }
         )
         return
@@ -42,6 +48,8 @@ def list_characters(json_out: JsonFlag = False) -> None:
         table.add_column(col)
     for s in specs:
         table.add_row(s.name, str(s.num_joints), str(s.physics_hz), str(s.control_hz), s.description)
+    for n, problem in unavailable.items():
+        table.add_row(n, "-", "-", "-", f"unavailable: {problem}")
     console.print(table)
 
 

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -268,6 +271,13 @@ def _launch(nproc: int, args: list[str]) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
+def _jax_follower() -> bool:
+    """True in a jax-mjx multi-host process other than process 0 (``AMORCTL_JAX_DISTRIBUTED=1``,
+    ``JAX_PROCESS_ID`` > 0; docs/backends.md): it trains along but writes no run directory."""
+    on = os.environ.get("AMORCTL_JAX_DISTRIBUTED", "") not in ("", "0")
+    return on and os.environ.get("JAX_PROCESS_ID", "0").strip() not in ("", "0")
+
+
 def _train_here(
     config: TrainConfig,
     out: Path,
@@ -277,6 +287,13 @@ def _train_here(
     fixed_weights: str | None,
 ) -> None:
     """Train in this process (one rank under torchrun); rank 0 alone prints."""
+    if _jax_follower():  # jax-mjx multi-host: the same program, but only process 0 writes `out`
+        with tempfile.TemporaryDirectory(prefix="amorctl-jax-process-") as tmp:
+            scratch = Path(tmp) / "run"
+            if resume:  # the run as process 0 sees it (a shared filesystem, or a copy per host)
+                shutil.copytree(out, scratch)
+            train_run(config, scratch, resume=resume)
+        return
     if not world.is_main:
         json_out = True  # no live view
 

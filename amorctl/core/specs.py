@@ -66,10 +66,12 @@ class ActuatorModel:
     ``kind="pd"``: MuJoCo position actuators ("virtual actuators"): torque = kp (q* - q) - kd q̇,
     clipped to ±torque_limit, all inside MuJoCo.
 
-    ``kind="servo"``: MuJoCo motor actuators whose torque is computed every physics substep by
-    :func:`amorctl.sim.actuators.servo_torque` (vectorized over envs): the PD
-    law on a command delayed by ``latency_steps`` physics steps, clipped by a torque–speed curve
-    that falls linearly from ``torque_limit`` at rest to zero at ``no_load_speed``. Armature,
+    ``kind="servo"``: a servo computed every physics substep (inside MuJoCo's step as a
+    ``dcmotor``, :func:`amorctl.sim.actuators.native_servo`; numpy reference
+    :func:`amorctl.sim.actuators.servo_torque`): the PD law on a command delayed by
+    ``latency_steps`` physics steps, clipped to a DC motor's torque–speed range (driving torque
+    falls linearly from ``torque_limit`` at rest to zero at ``no_load_speed``; braking keeps
+    ``torque_limit``). Armature,
     Coulomb friction (``frictionloss``) and viscous friction (``damping``) are native MuJoCo joint
     properties: the three fields here record the values the model file holds for every joint
     (informational); to have amorctl write a value into the model, set it per joint in
@@ -114,6 +116,14 @@ class CharacterSpec:
     #: skeleton, like ``humanoid36``); ``"ik"`` solves key-point inverse kinematics (any humanoid).
     retarget: Literal["direct", "ik"] = "ik"
     add_floor: bool = True  # add a ground plane at z = 0 when the model has no plane/height field
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled (worker processes) with the resolved path: a callable source may not pickle,
+        and whoever receives a spec is about to use its model."""
+        state = dict(self.__dict__)
+        state["_mjcf_path_source"] = self.mjcf_path
+        state.pop("_mjcf_path_resolved", None)
+        return state
 
     @property
     def model_source(self) -> ModelSource:

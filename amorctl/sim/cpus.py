@@ -15,3 +15,38 @@ def available_cpus() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # no affinity API (macOS, Windows)
         return max(1, os.cpu_count() or 1)
+
+
+def idle_cpus(sample_s: float = 0.3) -> int:
+    """Cores of this process's affinity that are idle now, at least one.
+
+    Samples ``/proc/stat`` twice ``sample_s`` apart and sums the idle fraction of each core in the
+    affinity mask (a core half taken by another process counts half; rounded). Falls back to
+    :func:`available_cpus` where ``/proc/stat`` is missing (not Linux).
+    """
+    import time
+
+    try:
+        cores = sorted(os.sched_getaffinity(0))
+        before = _cpu_times()
+        time.sleep(sample_s)
+        after = _cpu_times()
+    except (AttributeError, OSError):
+        return available_cpus()
+    idle = 0.0
+    for core in cores:
+        if core in before and core in after:
+            total = sum(after[core]) - sum(before[core])
+            idle += (after[core][3] + after[core][4] - before[core][3] - before[core][4]) / max(total, 1)
+    return max(1, min(len(cores), round(idle)))
+
+
+def _cpu_times() -> dict[int, list[int]]:
+    """Per-core jiffies from ``/proc/stat``: user, nice, system, idle, iowait, ..."""
+    times = {}
+    with open("/proc/stat") as f:
+        for line in f:
+            name, *fields = line.split()
+            if name.startswith("cpu") and name != "cpu":
+                times[int(name[3:])] = [int(x) for x in fields[:8]]
+    return times

@@ -24,6 +24,7 @@ from amorctl.core.frame_layout import frame_dim
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.motion.clips import MotionLibrary
+from amorctl.plugins.backends.jax_mjx import devices
 from amorctl.plugins.backends.jax_mjx.core import EnvState, MjxTracking, Selection, StepOut, _keys
 from amorctl.registry import get_registry
 
@@ -56,7 +57,6 @@ class MjxTrackingEnv:
         seed: int | None = 0,
     ) -> None:
         from amorctl.envs.tracking_env import _check_clips, _check_library, _check_weights
-        from amorctl.plugins.backends.jax_mjx import devices
 
         registry = get_registry() if isinstance(character, str) or isinstance(objective_set, str) else None
         ch = registry.character(character) if isinstance(character, str) else character
@@ -119,7 +119,7 @@ class MjxTrackingEnv:
     @property
     def weights(self) -> np.ndarray:
         """[N, m] float32: each env's current episode weights."""
-        return np.asarray(self._require().weights, np.float32).copy()
+        return devices.to_host(self._require().weights).astype(np.float32)
 
     def _require(self) -> EnvState:
         if self.state is None:
@@ -131,8 +131,6 @@ class MjxTrackingEnv:
         """Split the per-env leaves over the devices (the delay buffer along its env axis)."""
         if self.mesh.size == 1:
             return state
-        from amorctl.plugins.backends.jax_mjx import devices
-
         placed = self._shard(state._replace(delay=jnp.zeros(()), delay_head=jnp.zeros(()), key=jnp.zeros(())))
         return placed._replace(
             delay=devices.shard_envs(self.mesh, state.delay, axis=1),
@@ -152,7 +150,7 @@ class MjxTrackingEnv:
             self._seed = int(seed)
         self.diverged_total = 0
         self.state = self._place(self._reset(_keys(self._seed), self.sel))
-        return np.asarray(self.state.obs), {}
+        return devices.to_host(self.state.obs), {}
 
     def step(
         self, actions: np.ndarray
@@ -163,8 +161,9 @@ class MjxTrackingEnv:
             raise AmorError(
                 f"actions must have shape {(self.num_envs, self.action_dim)}, got {actions.shape}"
             )
-        self.state, out = self._step(self._require(), self.sel, jnp.asarray(actions))
-        out = jax.device_get(out)
+        sel, actions = devices.to_global(self.mesh, (self.sel, jnp.asarray(actions)))
+        self.state, out = self._step(self._require(), sel, actions)
+        out = jax.tree_util.tree_map(devices.to_host, out)
         self.diverged_total += int(out.diverged.sum())
         info = {
             "final_obs": out.final_obs,
@@ -217,7 +216,7 @@ class MjxTrackingEnv:
     def get_state(self) -> Snapshot:
         """The whole env state: every leaf of :class:`EnvState` as ``state/<i>`` (numpy), the clip
         selection and ``diverged_total`` in the metadata."""
-        leaves = jax.tree_util.tree_leaves(jax.device_get(self._require()))
+        leaves = [devices.to_host(x) for x in jax.tree_util.tree_leaves(self._require())]
         arrays = {f"state/{i}": np.atleast_1d(np.asarray(x)).copy() for i, x in enumerate(leaves)}
         meta = {
             "backend": "jax-mjx",
@@ -294,6 +293,7 @@ class MjxTrackingEnv:
 
     def run_rollout(self, fn: Any, params: Any, norm: Any, key: jax.Array) -> tuple[Any, np.ndarray]:
         """Run a :meth:`fused_rollout` function on this env's state; returns (batch, current obs)."""
-        self.state, batch, diverged = fn(params, norm, self._require(), self.sel, key)
-        self.diverged_total += int(diverged)
+        sel = devices.to_global(self.mesh, self.sel)
+        self.state, batch, diverged = fn(params, norm, self._require(), sel, key)
+        self.diverged_total += int(devices.to_host(diverged))
         return batch, self.state.obs

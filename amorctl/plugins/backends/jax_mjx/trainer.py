@@ -14,7 +14,11 @@ Devices: the env axis N of the env state and of the batch is sharded over a 1-D 
 local devices (:mod:`.devices`); parameters and optimizer state are replicated. ``jit`` then
 partitions the same program across the devices (GSPMD): per-env work runs where the env lives,
 gradient and statistics reductions become all-reduces, so the update equals the one-device
-update on the same batch up to float reduction order (tested with 2 CPU devices).
+update on the same batch up to float reduction order (tested with 2 CPU devices). With several
+JAX processes (multi-host, :func:`.devices.initialize_distributed`) every process runs this same
+program: host values (observations of numpy envs, keys, the normalizer) are lifted onto the
+global mesh, sharded results read back with ``process_allgather`` (tested: 2 processes on one
+machine give the 1-process 2-device update).
 
 Checkpoints use torch-cpu's array names for the networks and the normalizer (so its inference
 path loads them); the optax state, the JAX key, the current observations and episode statistics
@@ -157,6 +161,11 @@ class JaxMOPPOTrainer:
     def params(self) -> Params:
         return self.state.params
 
+    def _g(self, tree: Any) -> Any:
+        """Host or process-local inputs of a jitted call, lifted onto the mesh when several JAX
+        processes share it (:func:`.devices.to_global`); unchanged in one process."""
+        return devices.to_global(self.mesh, tree)
+
     def _next_key(self) -> jax.Array:
         self.key, sub = jax.random.split(self.key)
         return sub
@@ -195,8 +204,8 @@ class JaxMOPPOTrainer:
         for t in range(T):
             t0 = time.perf_counter()
             weights = np.asarray(self.env.weights, dtype=np.float32)
-            obs = jnp.asarray(self.obs)
-            action, mean, value, logp = self._policy(params, norm, obs, self._next_key())
+            obs = self._g(jnp.asarray(self.obs))
+            action, mean, value, logp = self._policy(params, norm, obs, self._g(self._next_key()))
             action_np = np.asarray(action)
             t1 = time.perf_counter()
             next_obs, rewards, terminated, truncated, info = self.env.step(action_np)
@@ -205,7 +214,7 @@ class JaxMOPPOTrainer:
             trunc_buf[t] = np.asarray(truncated, bool) & ~term_buf[t]
             next_val = np.zeros((N, m), np.float32)
             if trunc_buf[t].any():  # bootstrap time-limited episodes from V(final_obs)
-                final = jnp.asarray(np.asarray(info["final_obs"], np.float32))
+                final = self._g(jnp.asarray(np.asarray(info["final_obs"], np.float32)))
                 next_val[trunc_buf[t]] = np.asarray(self._values(params, norm, final))[trunc_buf[t]]
             rewards = np.asarray(rewards, np.float32)
             for name, value_t in (
@@ -218,11 +227,11 @@ class JaxMOPPOTrainer:
             t_env += t2 - t1
             t_policy += time.perf_counter() - t2 + t1 - t0
         t0 = time.perf_counter()
-        last_values = self._values(params, norm, jnp.asarray(self.obs))
+        last_values = self._values(params, norm, self._g(jnp.asarray(self.obs)))
         values = jnp.stack(bufs["val"])  # [T, N, m]
         following = jnp.concatenate([values[1:], last_values[None]], axis=0)
-        trunc = jnp.asarray(trunc_buf)
-        next_values = jnp.where(trunc[..., None], jnp.asarray(np.stack(bufs["next"])), following)
+        trunc = self._g(jnp.asarray(trunc_buf))
+        next_values = jnp.where(trunc[..., None], self._g(jnp.asarray(np.stack(bufs["next"]))), following)
         t_policy += time.perf_counter() - t0
         D, A = self.env.obs_dim, self.env.action_dim
         batch = mm.Batch(
@@ -231,10 +240,10 @@ class JaxMOPPOTrainer:
             log_probs=jnp.stack(bufs["logp"]).reshape(T * N),
             means=jnp.stack(bufs["mean"]).reshape(T * N, A),
             values=values.reshape(T * N, m),
-            weights=jnp.asarray(np.stack(bufs["w"])).reshape(T * N, m),
-            rewards=jnp.asarray(np.stack(bufs["rew"])),
+            weights=self._g(jnp.asarray(np.stack(bufs["w"]).reshape(T * N, m))),
+            rewards=self._g(jnp.asarray(np.stack(bufs["rew"]))),
             next_values=next_values,
-            terminated=jnp.asarray(term_buf),
+            terminated=self._g(jnp.asarray(term_buf)),
             truncated=trunc,
             old_log_std=params["actor"]["log_std"],
         )
@@ -243,14 +252,15 @@ class JaxMOPPOTrainer:
     def _fused_rollout(self, norm: Any) -> tuple[mm.Batch, dict[str, float]]:
         """The env's jitted rollout; episode statistics from its rewards and episode ends."""
         t0 = time.perf_counter()
-        batch, obs = self.env.run_rollout(self._rollout, self.params, norm, self._next_key())  # type: ignore[attr-defined]
-        rewards = np.asarray(batch.rewards, np.float64)  # blocks until the rollout is done
-        weights = np.asarray(batch.weights, np.float64).reshape(rewards.shape)
-        terminated, truncated = np.asarray(batch.terminated), np.asarray(batch.truncated)
+        key = self._g(self._next_key())
+        batch, obs = self.env.run_rollout(self._rollout, self.params, norm, key)  # type: ignore[attr-defined]
+        rewards = devices.to_host(batch.rewards).astype(np.float64)  # blocks until the rollout is done
+        weights = devices.to_host(batch.weights).astype(np.float64).reshape(rewards.shape)
+        terminated, truncated = devices.to_host(batch.terminated), devices.to_host(batch.truncated)
         elapsed = time.perf_counter() - t0
         for t in range(rewards.shape[0]):
             self._track_episodes(rewards[t], weights[t], terminated[t], truncated[t])
-        self.obs = np.asarray(obs, np.float32)
+        self.obs = devices.to_host(obs).astype(np.float32)
         return batch, {"env": elapsed, "policy": 0.0}
 
     def _track_episodes(
@@ -280,12 +290,12 @@ class JaxMOPPOTrainer:
     def iteration(self) -> dict[str, float]:
         """Rollout, returns and update (jitted), normalizer; returns this iteration's metrics."""
         start = time.perf_counter()
-        norm = self.normalizer.device_stats()
+        norm = self._g(self.normalizer.device_stats())
         batch, times = self._fused_rollout(norm) if self.fused else self._host_rollout(norm)
         batch = devices.shard_batch(self.mesh, batch)
         t0 = time.perf_counter()
-        self.state, stats = self._learn(self.state, norm, batch, self._next_key())
-        stats = jax.device_get(stats)
+        self.state, stats = self._learn(self.state, norm, batch, self._g(self._next_key()))
+        stats = jax.tree_util.tree_map(devices.to_host, stats)
         times["update"] = time.perf_counter() - t0
         if self.cfg.normalize_obs:
             self.normalizer.update_moments(batch.obs.shape[0], stats["obs_mean"], stats["obs_var"])

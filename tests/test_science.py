@@ -1,0 +1,91 @@
+"""The pure helpers of benchmarks/science.py (issue 13's statistics and report): fast, no training."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import science_report as sr
+
+
+def test_level_stats_monotonic_effect_size_and_survival() -> None:
+    returns = np.array([[1.0, 3.0], [3.0, 5.0], [6.0, 8.0]])  # means 2, 4, 7; std at low level 1
+    s = sr.level_stats([0.0, 0.5, 1.0], returns, [1.0, 0.95, 0.9])
+    assert s["mean"] == [2.0, 4.0, 7.0]
+    assert s["monotonic"] is True
+    assert s["effect_size"] == pytest.approx(5.0)
+    assert s["min_survival"] == 0.9
+    s["spearman_rho"] = 0.92
+    assert sr.sweep_passes(s)
+    s["spearman_rho"] = 0.85
+    assert not sr.sweep_passes(s)
+
+
+def test_level_stats_not_monotonic_and_no_spread() -> None:
+    s = sr.level_stats([0, 0.5, 1], np.array([[2.0, 2.0], [5.0, 5.0], [4.0, np.nan]]), [1, 1, 0.5])
+    assert s["monotonic"] is False
+    assert s["effect_size"] is None  # the low level has no spread
+    s["spearman_rho"] = 0.99
+    assert not sr.sweep_passes(s)  # not monotonic, and survival 0.5
+
+
+def test_step_pairs_skip_episode_ends_and_clip_switches() -> None:
+    valid = np.array([[1, 1], [1, 1], [1, 1], [1, 0]], dtype=bool)
+    episode = np.array([[0, 1], [0, 1], [0, 1], [0, -1]])
+    frames = np.array([[5, 9], [6, 10], [20, 11], [21, 12]])  # env 0 switches clip at t = 2
+    pairs = sr.step_pairs(valid, episode, frames)
+    assert pairs.tolist() == [[False, False], [True, True], [False, True], [True, False]]
+
+
+def test_smoothness_uses_pd_targets_and_finite_differences() -> None:
+    t, n, j = 3, 2, 2
+    actions = np.zeros((t, n, j))
+    actions[1, 0] = [0.1, 0.0]  # env 0: action jumps by 0.1 on one joint at t = 1
+    ref = np.zeros((t, n, j))
+    ref[:, 1, 0] = [0.0, 0.2, 0.4]  # env 1: the reference moves: residual targets move with it
+    q = np.zeros((t, n, j))
+    q[:, 0, 1] = [0.0, 0.02, 0.04]  # env 0: 0.02 rad per 0.02 s = 1 rad/s on one joint
+    pairs = np.array([[False, False], [True, True], [True, True]])
+    rate, vel2 = sr.smoothness_per_env(actions, q, ref, pairs, 0.02, residual=True)
+    assert rate == pytest.approx([0.01 + 0.01, 0.04 + 0.04])
+    assert vel2 == pytest.approx([2.0, 0.0])
+    absolute, _ = sr.smoothness_per_env(actions, q, ref, pairs, 0.02, residual=False)
+    assert absolute == pytest.approx([0.02, 0.0])
+    by = sr.smoothness_by_level(rate, vel2, pairs.sum(0), levels=2, joints=j)
+    assert by["action_rate"] == pytest.approx([0.01, 0.04])
+    assert by["joint_vel_rms"] == pytest.approx([np.sqrt(2.0 / 4), 0.0])
+    assert by["action_rate_falls"] is False and by["joint_vel_rms_falls"] is True
+
+
+def test_weights_reference_and_iterations() -> None:
+    w = sr.corner_heavy_weights(7, 0.7)
+    assert np.allclose(w.sum(1), 1) and np.allclose(np.diag(w), 0.7) and np.isclose(w[0, 1], 0.05)
+    assert sr.hv_reference(3, 500, 2).tolist() == [500.0, 500.0, 0.0]
+    assert sr.common_iterations([25, 50, 75, 100], [25, 50, 60], 8) == [25, 50]
+    picked = sr.common_iterations(list(range(25, 1001, 25)), list(range(25, 1001, 25)), 5)
+    assert len(picked) == 5 and picked[0] == 25 and picked[-1] == 1000
+
+
+def test_report_renders_partial_results_with_verdicts_and_rerun_commands() -> None:
+    results = {
+        "meta": {"command": "python benchmarks/science.py", "rerun": {"front": "python x --only front"}},
+        "skipped": {"front": "the run's deadline came first"},
+        "bar": {
+            "episodes": 4,
+            "seed": 1,
+            "uniform": {"weights": "u", "survival_rate": 0.95, "joint_mae_deg": 9.0, "mpjpe_mm": 1.0,
+                        "episode_length_s": 10.0},
+            "tracking_heavy": {"weights": "t", "survival_rate": 0.9, "joint_mae_deg": 8.0, "mpjpe_mm": 1.0,
+                               "episode_length_s": 10.0},
+        },
+    }  # fmt: skip
+    md = sr.render_markdown(results, "## Protocol\n\ntext")
+    assert "| learning bar: survival over 10 s ≥ 90 % (uniform w) | 0.95 | **pass** |" in md
+    assert "8° vs 9° | **pass** |" in md
+    assert "_Not measured (the run's deadline came first)._ To measure it: `python x --only front`" in md
+    assert "| claim (i) | not measured | – |" in md
