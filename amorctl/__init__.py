@@ -1,6 +1,14 @@
 """amorctl: adaptive character control through multi-objective reinforcement learning."""
 
+import os
 from importlib.metadata import PackageNotFoundError, version
+
+# Idle OpenMP threads (torch's intra-op pool) sleep instead of spinning (libgomp's default spins
+# ~3 ms after every parallel region): beside another busy process, spinning workers take the
+# cores MuJoCo's threads need (docs/environment.md, "Threads and contention"). OpenMP reads this
+# once, when torch loads, so it is set before any import of torch; a user's own setting wins.
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
 
 try:
     __version__ = version("amorctl")

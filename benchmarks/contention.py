@@ -12,11 +12,13 @@ two cores with one taken is ~0.5).
 Levers (``--levers``; a fresh process each, so environment variables take effect before torch
 loads):
 
-- ``default``: what ``amorctl train`` does now (threads = the cores in the affinity mask, native
-  servo inside MuJoCo's step, OpenMP's default wait policy);
-- ``python-servo``: as ``default`` but the servo computed in numpy between single physics steps
-  (5 pool dispatches per control step instead of 1: the state before the servo moved into MuJoCo);
-- ``omp-passive``: ``OMP_WAIT_POLICY=passive`` (idle OpenMP threads sleep instead of spinning);
+- ``default``: what ``amorctl train`` does now: threads = the cores in the affinity mask, the
+  servo inside MuJoCo's step, ``OMP_WAIT_POLICY=PASSIVE`` (set by ``import amorctl``);
+- ``before``: the state this benchmark was written against: numpy servo between single physics
+  steps (5 pool dispatches per control step instead of 1) and libgomp's default wait (spin about
+  3 ms after each parallel region, ``GOMP_SPINCOUNT=300000``, which ``import amorctl`` respects);
+- ``omp-spin``: ``default`` with libgomp's default spinning (the OpenMP lever alone);
+- ``python-servo``: ``default`` with the numpy servo (the servo lever alone);
 - ``free-cores``: threads = cores found idle when the process starts (``/proc/stat`` sampled
   for 0.3 s, see :func:`amorctl.sim.cpus.idle_cpus`), for MuJoCo's pool and torch;
 - ``one-thread``: one MuJoCo thread and one torch thread, whatever the machine.
@@ -24,7 +26,7 @@ loads):
 Run it under the shared lock; pin it with ``taskset`` to measure on fewer cores (the competitor
 then shares one of those).
 
-    python benchmarks/contention.py [--levers default omp-passive ...] [--iterations 2]
+    python benchmarks/contention.py [--levers default before ...] [--iterations 2]
         [--preset quick] [--num-envs N]
 """
 
@@ -38,7 +40,9 @@ import subprocess
 import sys
 import time
 
-LEVERS = ("default", "python-servo", "omp-passive", "free-cores", "one-thread")
+LEVERS = ("default", "before", "omp-spin", "python-servo", "free-cores", "one-thread")
+#: libgomp's spin count when OMP_WAIT_POLICY is unset (about 3 ms; libgomp's env.c)
+GOMP_DEFAULT_SPINCOUNT = "300000"
 
 
 def child(args: argparse.Namespace) -> None:
@@ -55,7 +59,7 @@ def child(args: argparse.Namespace) -> None:
     if args.num_envs:
         config = override(config, env__num_envs=args.num_envs)
     config = override(config, run__threads=threads)
-    if args.lever == "python-servo":  # the env builds its BatchSim with the reference servo
+    if args.lever in ("python-servo", "before"):  # the env builds its BatchSim with the reference servo
         import functools
 
         import amorctl.envs.tracking_env as tracking_env
@@ -72,15 +76,17 @@ def child(args: argparse.Namespace) -> None:
     rates = [trainer.iteration()["env_steps_per_s"] for _ in range(args.iterations)]
     env.close()
     print(json.dumps({"env_steps_per_s": statistics.median(rates), "threads": threads,
-                      "torch_threads": torch.get_num_threads()}))  # fmt: skip
+                      "torch_threads": torch.get_num_threads(),
+                      "omp": os.environ.get("OMP_WAIT_POLICY") or f"spin {os.environ.get('GOMP_SPINCOUNT')}"}))  # fmt: skip
 
 
 def run_child(lever: str, args: argparse.Namespace) -> dict[str, float]:
     """One measurement of ``lever`` in a fresh interpreter (same affinity as this one)."""
     env = dict(os.environ)
     env.pop("OMP_WAIT_POLICY", None)
-    if lever == "omp-passive":
-        env["OMP_WAIT_POLICY"] = "passive"
+    env.pop("GOMP_SPINCOUNT", None)
+    if lever in ("omp-spin", "before"):  # libgomp's default: amorctl leaves a set spin count alone
+        env["GOMP_SPINCOUNT"] = GOMP_DEFAULT_SPINCOUNT
     cmd = [
         sys.executable,
         __file__,
@@ -137,7 +143,7 @@ def main() -> None:
             competitor.wait()
         q, c = quiet["env_steps_per_s"], busy["env_steps_per_s"]
         print(
-            f"{lever:<13} threads quiet/contended: {quiet['threads']}/{busy['threads']}  "
+            f"{lever:<13} threads quiet/contended: {quiet['threads']}/{busy['threads']}  omp: {busy['omp']:<12} "
             f"quiet: {q:7,.0f} env steps/s  contended: {c:7,.0f} env steps/s  ratio: {c / q:.2f}",
             flush=True,
         )

@@ -224,7 +224,11 @@ def test_nothing_outside_plugins_imports_plugins() -> None:
 #: A tracking env's private state; outside envs/ analysis reads it through ``TrackingView``.
 PRIVATE_ENV_ATTRS = ("library", "ref_idx", "ref_frames", "obs_layout", "clip_id")
 #: Modules that implement a tracking env and its TrackingView (a backend's own), besides ``envs/``.
-ENV_IMPLEMENTATIONS = ("amorctl/plugins/backends/*/env.py", "amorctl/plugins/backends/*/view.py")
+ENV_IMPLEMENTATIONS = (
+    "amorctl/plugins/backends/*/env.py",
+    "amorctl/plugins/backends/*/view.py",
+    "amorctl/plugins/backends/jax_mjx/core.py",  # the pure MJX env that env.py wraps
+)
 #: Reads that match the pattern but are not a tracking env's: (file, code) -> why.
 NOT_A_TRACKING_ENV = {
     ("amorctl/deploy/runtime_log.py", "runtime.sim.base_model"): "the deploy runtime's own simulator",
