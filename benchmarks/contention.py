@@ -75,9 +75,14 @@ def child(args: argparse.Namespace) -> None:
     trainer.iteration()
     rates = [trainer.iteration()["env_steps_per_s"] for _ in range(args.iterations)]
     env.close()
-    print(json.dumps({"env_steps_per_s": statistics.median(rates), "threads": threads,
-                      "torch_threads": torch.get_num_threads(),
-                      "omp": os.environ.get("OMP_WAIT_POLICY") or f"spin {os.environ.get('GOMP_SPINCOUNT')}"}))  # fmt: skip
+    omp = os.environ.get("OMP_WAIT_POLICY") or f"spin {os.environ.get('GOMP_SPINCOUNT')}"
+    result = {
+        "env_steps_per_s": statistics.median(rates),
+        "threads": threads,
+        "torch_threads": torch.get_num_threads(),
+        "omp": omp,
+    }
+    print(json.dumps(result))
 
 
 def run_child(lever: str, args: argparse.Namespace) -> dict[str, float]:
@@ -143,7 +148,8 @@ def main() -> None:
             competitor.wait()
         q, c = quiet["env_steps_per_s"], busy["env_steps_per_s"]
         print(
-            f"{lever:<13} threads quiet/contended: {quiet['threads']}/{busy['threads']}  omp: {busy['omp']:<12} "
+            f"{lever:<13} threads quiet/contended: {quiet['threads']}/{busy['threads']}  "
+            f"omp: {busy['omp']:<12} "
             f"quiet: {q:7,.0f} env steps/s  contended: {c:7,.0f} env steps/s  ratio: {c / q:.2f}",
             flush=True,
         )
