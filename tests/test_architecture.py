@@ -328,3 +328,24 @@ def test_no_module_is_over_500_lines() -> None:
     assert not long, f"modules over {MAX_MODULE_LINES} lines (split them): " + ", ".join(
         f"{p} ({n})" for p, n in sorted(long.items())
     )
+
+
+def test_docs_map_has_a_line_for_every_folder() -> None:
+    """docs/architecture.md's map names every folder of ``amorctl/`` (a parent counts as named when
+    one of its subfolders is, e.g. ``amorctl/templates/`` by ``amorctl/templates/plugin/``). The
+    run directories under ``amorctl/pretrained/`` are data and are not listed one by one."""
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    map_text = doc.split("## Map", 1)[1].split("\n## ", 1)[0]
+    listed = {line.split("`")[1] for line in map_text.splitlines() if line.startswith("| `")}
+    folders = {
+        f"{path.relative_to(ROOT).as_posix()}/"
+        for path in [PACKAGE, *PACKAGE.rglob("*")]
+        if path.is_dir()
+        and "__pycache__" not in path.parts
+        and any(path.iterdir())
+        and PACKAGE / "pretrained" not in path.parents
+    }
+    missing = sorted(f for f in folders if not any(entry.startswith(f) for entry in listed))
+    assert not missing, "docs/architecture.md map lacks a line for: " + ", ".join(missing)
+    stale = sorted(e for e in listed if e.endswith("/") and e not in folders)
+    assert not stale, "docs/architecture.md map names folders that do not exist: " + ", ".join(stale)

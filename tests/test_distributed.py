@@ -41,6 +41,7 @@ TIMEOUT_S = 20.0  # AMORCTL_DIST_TIMEOUT of the launched ranks
 B, MINIBATCHES, EPOCHS = 64, 4, 2  # the fixed batch of the update test
 SWEEP_K, SWEEP_E = 15, 8  # weight vectors and episodes of the Pareto test (blocks 8 + 7)
 SWEEP_LEVEL_E = 5  # episodes per level of the weight sweep (blocks 3 + 2)
+TRACK_K, TRACK_E, TRACK_LEVEL_E = 7, 2, 3  # the same on the tracking env (blocks 4 + 3, 2 + 1)
 
 
 def tiny_config(**sections: dict) -> TrainConfig:
@@ -195,9 +196,16 @@ def main_update(directory: Path, world: distributed.World) -> None:
 
 
 def main_train(directory: Path, world: distributed.World) -> None:
-    """A 6-iteration run, and the same run interrupted after 3 iterations and resumed."""
+    """A 6-iteration run, and the same run interrupted after 3 iterations and resumed; the ranks
+    compare their parameters after every iteration (``CHECK_EVERY = 1``) and count the checks."""
+    from amorctl.plugins.backends.torch_cpu import moppo
+    from amorctl.plugins.backends.torch_cpu.replicas import Replicas
     from amorctl.train.loop import train_run
 
+    checks: list[int] = []
+    check = Replicas.check_identical
+    moppo.CHECK_EVERY = 1
+    Replicas.check_identical = lambda self, modules, it: (checks.append(it), check(self, modules, it))[1]  # type: ignore[method-assign]
     config = tiny_config()
     train_run(config, directory / "full")
     part = train_run(config, directory / "part", stop_after=3)
@@ -205,6 +213,7 @@ def main_train(directory: Path, world: distributed.World) -> None:
     notes: list[str] = []
     resumed = train_run(config, directory / "part", resume=True, on_note=notes.append)
     assert (resumed.start_iteration, resumed.end_iteration) == (3, 6) and not notes
+    (directory / f"checks{world.rank}.json").write_text(json.dumps(checks))
 
 
 def main_cli(directory: Path, world: distributed.World) -> None:
@@ -224,11 +233,41 @@ def sweep_commands(directory: Path) -> tuple[list[str], list[str]]:
     return pareto, evaluate  # fmt: skip
 
 
+def tracking_sweep_commands(directory: Path) -> tuple[list[str], list[str]]:
+    """The same two commands for the biped20 tracking run in ``directory/run``: a front over
+    random clips (RSI and clip switches drawn per episode), a weight sweep on two named motions."""
+    run, out = str(directory / "run"), str(directory)
+    pareto = ["pareto", run, "--samples", str(TRACK_K), "--episodes", str(TRACK_E), "--out", f"{out}/p"]
+    evaluate = [
+        "evaluate",
+        run,
+        "--sweep",
+        "up",
+        "--episodes",
+        str(TRACK_LEVEL_E),
+        "--motion",
+        "sway_a",
+        "--motion",
+        "sway_b",
+        "--out",
+        f"{out}/e",
+    ]
+    return pareto, evaluate  # fmt: skip
+
+
 def main_pareto(directory: Path, world: distributed.World) -> None:
     """``amorctl pareto`` and ``amorctl evaluate --sweep`` of the toy run in ``directory/run``."""
     from amorctl.cli.main import main
 
     for command in sweep_commands(directory):
+        assert main([*command, "--seed", "3", "--json"]) == 0
+
+
+def main_pareto_tracking(directory: Path, world: distributed.World) -> None:
+    """The same for the tracking run in ``directory/run``."""
+    from amorctl.cli.main import main
+
+    for command in tracking_sweep_commands(directory):
         assert main([*command, "--seed", "3", "--json"]) == 0
 
 
@@ -304,6 +343,37 @@ def test_per_env_seeds_make_every_tracking_env_independent_of_its_batch() -> Non
     start = big.tracking_view().reference_index()
     big.reset(seed=SEEDS[::-1])
     assert not np.array_equal(start, big.tracking_view().reference_index())  # the seeds matter
+
+
+def test_per_env_seeds_make_every_gymnasium_copy_independent_of_its_batch() -> None:
+    """The Gymnasium adapter (``[env] kind = "gym"``): copy i is reset with ``seed[i]`` and then
+    auto-resets from its own generator; its weights come from its own generator too."""
+    import gymnasium as gym
+    from gymnasium.wrappers import TimeLimit
+
+    from amorctl.envs.mo_gym import MOGymVectorEnv
+
+    class Drift(gym.Env):
+        """x += 0.3 a + noise; rewards (-|x - 1|, -|a|); ends when |x| > 2 or after 4 steps."""
+
+        observation_space = gym.spaces.Box(-9, 9, (1,), np.float32)
+        action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+        reward_space = gym.spaces.Box(-np.inf, 0, (2,), np.float32)
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None):
+            super().reset(seed=seed)
+            self.x = float(self.np_random.uniform(-1, 1))
+            return np.array([self.x], np.float32), {}
+
+        def step(self, action):
+            a = float(np.asarray(action).reshape(-1)[0])
+            self.x += 0.3 * a + 0.1 * float(self.np_random.normal())
+            reward = np.array([-abs(self.x - 1.0), -abs(a)], np.float32)
+            return np.array([self.x], np.float32), reward, abs(self.x) > 2.0, False, {}
+
+    big, small = (MOGymVectorEnv(lambda: TimeLimit(Drift(), 4), num_envs=n) for n in (6, 3))
+    assert step_both(big, small, 20, 1.0) >= 15
+    np.testing.assert_array_equal(big.weights[SUB], small.weights)
 
 
 @pytest.mark.slow
@@ -401,6 +471,10 @@ def test_two_rank_run_is_replicated_and_resumes_to_the_same_metrics(tmp_path: Pa
     procs = launch("train", tmp_path)
     assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
     assert not logs(tmp_path, 1).strip()  # rank 1 is quiet
+    for rank in range(2):  # identical after every iteration, at every checkpoint (and the resume)
+        checked = json.loads((tmp_path / f"checks{rank}.json").read_text())
+        full_run, part_run, resumed_run = [1, 2, 2, 3, 4, 4, 5, 6, 6], [1, 2, 2, 3, 3], [0, 4, 4, 5, 6, 6]
+        assert checked == [*full_run, *part_run, *resumed_run], checked
     full, part = tmp_path / "full", tmp_path / "part"
     assert [i for i, _ in list_checkpoints(full / "checkpoints")] == [2, 4, 6]
     assert [i for i, _ in list_checkpoints(part / "checkpoints")] == [2, 3, 4, 6]
@@ -481,12 +555,52 @@ def test_two_rank_sweeps_equal_the_one_process_sweeps(
     two_csv = list(csv.DictReader((tmp_path / "p/pareto.csv").open()))
     one_csv = list(csv.DictReader((one / "p/pareto.csv").open()))
     assert [r["sample"] for r in two_csv] == [str(k) for k in range(SWEEP_K)] + ["equal"]
-    assert [r.keys() for r in two_csv] == [r.keys() for r in one_csv]
+    assert two_csv == one_csv  # every row, every column
     assert (tmp_path / "p/pareto.png").stat().st_size > 0
     # the weight sweep: each level's episodes 0-2 from rank 0, 3-4 from rank 1, as one process ran them
     sweep, sweep_one = evaluate_doc["sweep"], evaluate_one["sweep"]
     assert evaluate_doc["settings"] and Path(sweep["figure"]).is_file()
     assert np.array(sweep["returns"]).shape == (5, SWEEP_LEVEL_E)
+    assert {k: v for k, v in sweep.items() if k != "figure"} == {
+        k: v for k, v in sweep_one.items() if k != "figure"
+    }
+
+
+def test_two_rank_sweeps_on_the_tracking_env_equal_the_one_process_sweeps(
+    tmp_path: Path, tracking_run: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The biped20 tracking env (MuJoCo physics, RSI at a random clip and frame, clip switches):
+    ``amorctl pareto`` over random clips (7 weight vectors × 2 episodes split 4 + 3) and
+    ``evaluate --sweep up`` on two named motions (3 episodes per level split 2 + 1) on 2 ranks give
+    the 1-process front and returns bit for bit."""
+    from amorctl.cli.main import main
+
+    torch.set_num_threads(1)
+    (tmp_path / "run").symlink_to(tracking_run)
+    procs = launch("pareto-tracking", tmp_path)
+    one = tmp_path / "one"
+    one.mkdir()
+    (one / "run").symlink_to(tracking_run)
+    capsys.readouterr()
+    for command in tracking_sweep_commands(one):  # meanwhile: 1 process
+        assert main([*command, "--seed", "3", "--json"]) == 0
+    pareto_one, evaluate_one = json_docs(capsys.readouterr().out)
+    assert wait_all(procs, tmp_path) == [0, 0], logs(tmp_path, 0) + logs(tmp_path, 1)
+    assert not (tmp_path / "rank1.out").read_text()
+    pareto_doc, evaluate_doc = json_docs((tmp_path / "rank0.out").read_text())
+    assert json.loads((tmp_path / "p/pareto.json").read_text())["motions"] == pareto_doc["motions"]
+    assert pareto_doc["weights"] == pareto_one["weights"] and len(pareto_doc["weights"]) == TRACK_K
+    (front,) = pareto_doc["motions"]
+    points = np.array(front["points"], dtype=float)
+    assert points.shape == (TRACK_K, 7) and np.isfinite(points).all()
+    assert len({tuple(p) for p in points.round(9).tolist()}) == TRACK_K  # every sample its own row
+    assert front["hypervolume"]["value"] > 0
+    assert pareto_doc["motions"] == pareto_one["motions"]  # every value of the front, bit for bit
+    two_csv = (tmp_path / "p/pareto.csv").read_text()
+    assert two_csv == (one / "p/pareto.csv").read_text()
+    sweep, sweep_one = evaluate_doc["sweep"], evaluate_one["sweep"]
+    returns = np.array(sweep["returns"], dtype=float)
+    assert returns.shape == (5, TRACK_LEVEL_E) and np.isfinite(returns).all() and np.ptp(returns) > 0
     assert {k: v for k, v in sweep.items() if k != "figure"} == {
         k: v for k, v in sweep_one.items() if k != "figure"
     }
@@ -510,7 +624,7 @@ def _wait_rows(run: Path, count: int, procs: list[subprocess.Popen], timeout: fl
     assert len(rows(run)) >= count
 
 
-def test_sigterm_on_one_rank_stops_both_and_a_dead_rank_fails_the_other(tmp_path: Path) -> None:
+def test_a_signal_on_one_rank_stops_both_and_a_dead_rank_fails_the_other(tmp_path: Path) -> None:
     _long_run(tmp_path)
     run = tmp_path / "run"
     procs = launch("cli", tmp_path)
@@ -524,13 +638,20 @@ def test_sigterm_on_one_rank_stops_both_and_a_dead_rank_fails_the_other(tmp_path
     assert summary["interrupted"] and summary["end_iteration"] == iteration
     assert load_checkpoint(path).trainer.meta[distributed.WORLD_KEY] == 2
 
+    procs = launch("cli", tmp_path)  # resume with 2 ranks; Ctrl-C to rank 0 alone
+    _wait_rows(run, iteration + 2, procs)
+    procs[0].send_signal(signal.SIGINT)
+    assert wait_all(procs, tmp_path, timeout=60) == [130, 130], logs(tmp_path, 0) + logs(tmp_path, 1)
+    iteration, path = list_checkpoints(run / "checkpoints")[-1]
+    assert len(rows(run)) == iteration == json.loads((tmp_path / "rank0.out").read_text())["end_iteration"]
+
     procs = launch("cli", tmp_path)  # resume with 2 ranks, then kill rank 1 outright
     _wait_rows(run, iteration + 2, procs)
     procs[1].kill()
     killed = time.monotonic()
     code = procs[0].wait(timeout=TIMEOUT_S + 30)
     waited = time.monotonic() - killed
-    assert code != 0 and waited < TIMEOUT_S + 10, (code, waited)
+    assert code != 0 and waited < TIMEOUT_S, (code, waited)  # within the configured timeout
     err = (tmp_path / "rank0.err").read_text()
     assert "another rank died or stopped answering" in err and "Traceback" not in err
 
@@ -606,4 +727,6 @@ if __name__ == "__main__":
     if mode == "cli":
         main_cli(where, distributed.World())
     with distributed.session() as world_:
-        {"update": main_update, "train": main_train, "pareto": main_pareto}[mode](where, world_)
+        programs = {"update": main_update, "train": main_train, "pareto": main_pareto,
+                    "pareto-tracking": main_pareto_tracking}  # fmt: skip
+        programs[mode](where, world_)

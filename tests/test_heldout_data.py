@@ -87,6 +87,11 @@ def test_evaluate_pareto_and_tune_take_held_out_data(tracking_run: Path, tmp_pat
     out, err = capsys.readouterr()
     assert code == 0, err
     assert json.loads(out)["motion"] == "held_sway"
+    pareto = ["pareto", str(tracking_run), "--data", str(held), "-k", "2", "--out", str(tmp_path / "p")]
+    code = main([*pareto, "--motion", "held_sway", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert [g["motion"] for g in json.loads(out)["motions"]] == ["held_sway"]
     human = tmp_path / "human.mcap"
     write_dataset(human, synthetic_library(get_registry().character("humanoid36"), num_clips=1, seconds=0.5))
     for command in (["evaluate"], ["pareto", "--samples", "2"], ["tune", "--weights", "up=1"]):

@@ -420,3 +420,53 @@ def test_two_processes_give_the_one_process_two_device_update() -> None:
         assert outs[1]["params"][key] == value, key  # identical in both processes
         np.testing.assert_allclose(np.array(value), np.array(single["params"][key]), atol=1e-5, err_msg=key)
     np.testing.assert_allclose(outs[0]["loss"], single["loss"], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("character", ["biped20", "humanoid36"])
+def test_tracking_checkpoint_acts_the_same_through_torch(character: str, tmp_path) -> None:
+    """Both characters: a jax-mjx trainer's checkpoint (default network sizes, a normalizer fed
+    with the character's tracking observations) read back from disk acts and values identically
+    (1e-5) through the jax and torch-cpu inference paths, on that character's observations."""
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.envs.tracking_env import TrackingEnv
+    from amorctl.plugins.backends.jax_mjx import JaxMjxBackend
+    from amorctl.plugins.backends.jax_mjx.policy import JaxPolicy
+    from amorctl.plugins.backends.torch_cpu.policy import TorchPolicy
+    from amorctl.registry import get_registry
+    from amorctl.train.checkpoint import load_checkpoint, save_checkpoint
+
+    ch = get_registry().character(character)
+    lib = synthetic_library(ch, num_clips=2, seconds=1.0, seed=3)
+    env = TrackingEnv(ch, lib, num_envs=8, max_episode_steps=40, action_mode="residual", seed=0, nthread=1)
+    config = override(TrainConfig(), ppo__precision="fp32")
+    trainer = JaxMjxBackend().make_trainer(env, config)  # host path: the C env is a numpy VectorEnv
+    seen = [trainer.obs]
+    for _ in range(5):
+        obs = env.step(trainer.act(trainer.obs, deterministic=False))[0]
+        trainer.obs = np.asarray(obs, np.float32)
+        trainer.normalizer.update(obs)
+        seen.append(trainer.obs)
+    meta = dict(
+        backend="jax-mjx",
+        env_kind="tracking",
+        character=character,
+        objective_set="tracking7",
+        objectives=list(env.reward_space.names),
+        obs_dim=env.obs_dim,
+        action_dim=env.action_dim,
+    )
+    path = save_checkpoint(tmp_path, 0, meta, trainer.state_dict(), None)
+    state = load_checkpoint(path).trainer
+    jp, tp = JaxPolicy(state, config.network), TorchPolicy(state, config.network)
+    obs = np.concatenate(seen)  # [48, D]
+    assert jp.obs_dim == env.obs_dim and jp.action_dim == ch.num_joints
+    a = jp(obs)
+    np.testing.assert_allclose(a, tp(obs), atol=1e-5)
+    np.testing.assert_allclose(jp.values(obs), tp.values(obs), atol=1e-5)
+    np.testing.assert_allclose(a, trainer.act(obs), atol=1e-6)  # the checkpoint is the trainer's policy
+    assert np.abs(a).max() > 1e-3
+    assert (
+        jp.observation_layout
+        == tp.observation_layout
+        == {k: (s.start, s.stop) for k, s in env.obs_layout.items()}
+    )

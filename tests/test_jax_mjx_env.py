@@ -20,14 +20,19 @@ from amorctl.registry import get_registry
 N = 4
 
 
-def env_pair(character: str, contacts: bool = True, seconds: float = 2.0):
-    """A torch-cpu env and an MJX env of ``character`` in the same state (the C env's reset)."""
+def env_pair(character: str, contacts: bool = True, seconds: float = 2.0, servo: str = "native"):
+    """A torch-cpu env and an MJX env of ``character`` in the same state (the C env's reset).
+    ``servo="python"``: the C env runs the reference servo (``BatchSim(servo_model="python")``,
+    the code MJX runs) instead of MuJoCo's native one (servo characters only)."""
     from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
+    from amorctl.sim.batch_sim import BatchSim
 
     ch = get_registry().character(character)
     lib = synthetic_library(ch, num_clips=2, seconds=seconds, seed=3)
     kw = dict(num_envs=N, max_episode_steps=200, action_mode="residual", seed=0)
     c = TrackingEnv(ch, lib, nthread=1, **kw)
+    if servo != "native":
+        c.sim = BatchSim(ch, N, nthread=1, servo_model=servo)  # before reset: the env's only sim
     j = MjxTrackingEnv(ch, lib, **kw)
     if not contacts:
         c.sim.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
@@ -80,26 +85,40 @@ def run_pair(c, j, steps: int, scale: float, seed: int = 0, until_fall: bool = F
     return np.array(out)
 
 
+#: (character, contacts, resync, C env's servo, bound on max |Δreward|, bound on max |Δobs|)
+ENV_CASES = [
+    ("biped20", True, True, "python", 1e-4, 1e-4),
+    ("biped20", True, True, "native", 1e-3, 5e-2),
+    ("humanoid36", True, True, "native", 1e-4, 1e-4),
+    ("humanoid36", False, False, "native", 1e-4, 1e-4),
+]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    ("character", "contacts", "resync"),
-    [("biped20", True, True), ("humanoid36", True, True), ("humanoid36", False, False)],
-)
+@pytest.mark.parametrize(("character", "contacts", "resync", "servo", "tol_r", "tol_obs"), ENV_CASES)
 def test_mjx_env_rewards_and_observations_equal_torch_cpus(
-    character: str, contacts: bool, resync: bool
+    character: str, contacts: bool, resync: bool, servo: str, tol_r: float, tol_obs: float
 ) -> None:
-    """Same state and action -> rewards and observations within 1e-4, over 10 control steps of
-    random residual actions from RSI states of the synthetic clips.
+    """Same state and action -> the same rewards and observations, over 10 control steps of
+    random residual actions from RSI states of the synthetic clips (docs/backends.md).
 
     With contacts every step starts from the C env's state (``resync``): across steps the two
-    float precisions part at contact events (a foot corner at |dist| ~ 1e-6 touching in one and
-    not the other), after which the states differ by more than a single step's rounding
-    (docs/backends.md). humanoid36 without contacts runs 10 steps freely: its position actuators
-    saturate, the case of :func:`amorctl.plugins.backends.jax_mjx.physics.mjx_step`."""
-    c, j = env_pair(character, contacts)
+    float precisions part at contact events, after which the states differ by more than a single
+    step's rounding. humanoid36 without contacts runs 10 steps freely: its position actuators
+    saturate, the case of :func:`amorctl.plugins.backends.jax_mjx.physics.mjx_step`.
+
+    biped20: MJX runs the reference servo (``amorctl.sim.actuators.servo_torque``); against the C
+    env on the same reference servo the bound is 1e-4. torch-cpu's default, MuJoCo's native
+    ``dcmotor`` servo, departs from the reference in one of these 40 env steps (env 2, step 8:
+    r_ank_roll by 3.7e-4 rad, reward by 2.4e-4, an observed joint velocity by 1.6e-2; the C env
+    with the reference servo departs from the native one by the same amounts), hence its looser,
+    documented bound."""
+    c, j = env_pair(character, contacts, servo=servo)
     diffs = run_pair(c, j, 10, 0.05, resync=resync)
-    print(character, contacts, "max |Δr|, |Δobs|, |Δqpos| per step:\n", diffs)
-    assert diffs[:, 0].max() < 1e-4 and diffs[:, 1].max() < 1e-4, diffs
+    print(character, contacts, servo, "max |Δr|, |Δobs|, |Δqpos| per step:\n", diffs)
+    assert diffs[:, 0].max() < tol_r and diffs[:, 1].max() < tol_obs, diffs
+    if servo == "native" and tol_r > 1e-4:  # the looser bound is used by one step only
+        assert np.sum((diffs[:, 0] > 1e-4) | (diffs[:, 1] > 1e-4)) <= 1, diffs
 
 
 def standing_pose(model: mujoco.MjModel) -> np.ndarray:

@@ -131,6 +131,10 @@ def test_from_mjcf_reads_joints_gains_limits_and_standing_height_from_the_model(
     )
     assert without_gains.joints[0].kp == 75.0 and without_gains.joints[0].kd == 5.0  # the file's own
     assert without_gains.physics_hz == 500  # the file's timestep, 0.002 s
+    from amorctl.api import CharacterSpec
+
+    same = {"name": "t1", "groups": {"*": "upper"}, "end_effectors": spec.end_effectors}
+    assert CharacterSpec.from_mjcf(spec.mjcf_path, keypoints={"head": "H2"}, **same) == without_gains
 
 
 def test_characters_check_passes(register_character, capsys: pytest.CaptureFixture) -> None:
@@ -395,3 +399,23 @@ def test_model_paths_from_other_packages_resolve_on_first_use_not_at_registratio
     assert code == 0, err
     assert json.loads(out)["name"] == "t1_lazy" and calls["build"] == 1  # built by `list`, then cached
     assert json.loads(out)["mjcf"] == str(package_file(PACKAGE, *T1_XML))
+
+
+def test_the_walkthrough_plugin_in_the_docs_registers_the_t1(monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/plugins.md's T1 plugin (step 2), run as written: registered lazily, built on first use
+    into the spec the tests above use."""
+    import textwrap
+    import types
+
+    import amorctl.registry as reg
+
+    t1_path()  # skips without the package
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "plugins.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", doc, re.S)
+    (code,) = [textwrap.dedent(b) for b in blocks if 'LazyCharacter("t1"' in b]
+    module = types.ModuleType("docs_t1_plugin")
+    exec(compile(code, "docs/plugins.md", "exec"), module.__dict__)
+    registry = reg.load_registry(extra_plugins=[("t1", module, "amorctl-t1", "0.1.0")])
+    assert "t1" in registry.names("character")
+    monkeypatch.setattr(reg, "_CACHED", registry)
+    assert registry.character("t1") == t1_spec()

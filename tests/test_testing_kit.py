@@ -4,6 +4,7 @@ its contract suites, and the suites catch broken plugins."""
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -82,3 +83,51 @@ def test_jax_mjx_backend_meets_the_contract(tmp_path: Path) -> None:
         pytest.skip("jax-mjx backend not installed (pip install amorctl[jax])")
     spec = _character("biped20")
     check_backend(registry.backend("jax-mjx"), spec, tiny_dataset(spec, tmp_path / "ds.mcap"))
+
+
+def _doc_tables(text: str) -> list[list[list[str]]]:
+    """Markdown tables of ``text``: each a list of rows, each a list of cells (header row first)."""
+    tables: list[list[list[str]]] = []
+    current: list[list[str]] = []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            cells = [c.strip() for c in re.split(r"(?<!\\)\|", line.strip())[1:-1]]
+            if not set("".join(cells)) <= {"-", " "}:
+                current.append(cells)
+        elif current:
+            tables.append(current)
+            current = []
+    return tables
+
+
+def test_plugins_doc_describes_every_spec_field() -> None:
+    """docs/plugins.md's spec reference: one row per dataclass field of every spec type, with a
+    type, a unit and a status (character, joint and actuator fields) or a type and a meaning."""
+    from amorctl.core import specs
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "plugins.md").read_text()
+    section = doc[doc.index("## Character spec reference") : doc.index("## Adding a real robot")]
+    tables = _doc_tables(section)
+    five = [t for t in tables if t[0] == ["field", "type", "unit", "status", "meaning"]]
+    assert len(five) == 3
+    statuses = re.compile(r"^(enforced|checked|informational)\b")
+    for cls, table in zip((specs.CharacterSpec, specs.JointSpec, specs.ActuatorModel), five, strict=True):
+        rows = {r[0].strip("`"): r for r in table[1:]}
+        assert list(rows) == [f.name for f in dataclasses.fields(cls)], cls.__name__
+        for name, (_, type_, unit, status, meaning) in rows.items():
+            assert type_ and unit and meaning and statuses.match(status), (cls.__name__, name, status)
+    (others,) = [t for t in tables if t[0] == ["spec", "field", "type", "meaning"]]
+    documented = [(r[0].strip("`"), r[1].strip("`")) for r in others[1:] if r[2] and r[3]]
+    small = (specs.LazyCharacter, specs.ObjectiveSetSpec, specs.BackendSpec, specs.MotionFormatSpec)
+    expected = [
+        (cls.__name__, f.name) for cls in (*small, specs.ImportOptions) for f in dataclasses.fields(cls)
+    ]
+    assert sorted(documented) == sorted(expected)
+
+
+def test_plugins_doc_lists_every_api_name() -> None:
+    from amorctl import api
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "plugins.md").read_text()
+    section = doc[doc.index("## `amorctl.api`") : doc.index("## Writing a plugin package")]
+    assert set(api.__all__) <= set(re.findall(r"`(\w+)", section))

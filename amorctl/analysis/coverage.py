@@ -34,6 +34,7 @@ from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.simplex_regions import BIN_EDGES, NUM_BINS, region_index, region_labels
+from amorctl.core.weights import sample_dirichlet
 from amorctl.envs.wrappers import FixedWeights
 
 WCOUNT_PREFIX = "wcount/"  # the training loop's metric prefix (amorctl.train.episode_stats)
@@ -71,7 +72,7 @@ def stratified_weights(m: int, samples: int, seed: int = 0) -> np.ndarray:
         got = np.zeros((0, m))
         while len(got) < n:
             top = rng.uniform(lo, hi, size=4 * n)
-            rest = rng.dirichlet(np.ones(max(m - 1, 1)), size=4 * n) * (1.0 - top)[:, None]
+            rest = sample_dirichlet(rng, 4 * n, max(m - 1, 1), dtype=np.float64) * (1.0 - top)[:, None]
             w = np.insert(rest, k, top, axis=1) if m > 1 else top[:, None]
             w = w[:, :m]
             ok = region_index(w) == r

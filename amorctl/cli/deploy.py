@@ -279,6 +279,17 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"error: {err}", file=sys.stderr)
         return err.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # anything unexpected: one line unless debugging
+        if debug:
+            raise
+        print(
+            f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

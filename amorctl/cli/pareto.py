@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich import box
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -145,18 +146,22 @@ def _survivor_cells(sv: dict[str, Any]) -> tuple[str, str, str]:
         return f"0/{total}", "–", "–"
     return (
         f"{sv['count']}/{total}",
-        f"{sv['hypervolume']['value']:.6g}",
+        f"{sv['hypervolume']['value']:.4g}",
         f"{sv['non_dominated_fraction']:.1%}",
     )
 
 
 def _print_summary(doc: dict[str, Any], files: dict[str, str]) -> None:
     """The front metrics per motion as a table, then timing and where the files are."""
-    table = Table(title="Pareto front (objectives maximized; returns unscaled)")
-    cols = ("motion", "points", "non-dominated", "hypervolume", "HV method", "EUM", "sparsity", "survived",
-            "HV survivors", "ND survivors")  # fmt: skip
+    table = Table(
+        title="Pareto front (objectives maximized; returns unscaled)",
+        caption="ND: non-dominated fraction · HV: hypervolume (4 digits; full values in the JSON)",
+        box=box.SIMPLE_HEAD,
+        pad_edge=False,
+    )
+    cols = ("motion", "points", "ND", "HV", "method", "EUM", "sparsity", "survived", "HV surv.", "ND surv.")
     for col in cols:
-        table.add_column(col, justify="left" if col in ("motion", "HV method") else "right")
+        table.add_column(col, justify="left" if col in ("motion", "method") else "right", overflow="fold")
     for grp in doc["motions"]:
         hv = grp["hypervolume"]
         method = hv["method"] if hv["method"] == "exact" else f"MC, {hv['confidence']:.0%} CI ±"
@@ -165,7 +170,7 @@ def _print_summary(doc: dict[str, Any], files: dict[str, str]) -> None:
             grp["motion"],
             str(len(grp["points"])),
             f"{grp['non_dominated_fraction']:.1%}",
-            f"{hv['value']:.6g}",
+            f"{hv['value']:.4g}",
             method,
             f"{grp['expected_utility']:.4g}",
             f"{grp['sparsity']:.4g}",

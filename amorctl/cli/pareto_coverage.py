@@ -66,7 +66,8 @@ def _fmt(value: float | None, spec: str) -> str:
 def _print(doc: dict[str, Any], files: dict[str, str]) -> None:
     table = Table(title="Weight coverage per region (dominant objective : its weight)")
     for col in ("region", "samples", "predicted", "achieved", "gap", "rel. gap", "survival", "train eps"):
-        table.add_column(col, justify="left" if col == "region" else "right", no_wrap=col == "region")
+        left = col == "region"
+        table.add_column(col, justify="left" if left else "right", no_wrap=left, overflow="fold")
     for r in doc["regions"]:
         if not r["feasible"]:
             continue

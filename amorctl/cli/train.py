@@ -44,7 +44,7 @@ class _Display(TrainingView):
         names = env.reward_space.names
         c = self.config
         where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
-        mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else "w ~ Dirichlet(1) per episode"
+        mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else _weight_mode(c)
         self.begin(
             names,
             start,
@@ -91,6 +91,16 @@ class _Display(TrainingView):
             f"survival {fmt(m['episode/survival'], '.2f')}  returns {self.per_objective(m, 'return')}"
             + (f"  survival by family: {families}" if (families := family_survival(m)) else "")
         )
+
+
+def _weight_mode(c: TrainConfig) -> str:
+    """How MOPPO draws each episode's w, as the header says it: the paper's Dirichlet(1), or the
+    [weights] mix (docs/moppo.md, "Levers"), e.g. ``w ~ Dirichlet(1) per episode, corner 10%, axis 30%``."""
+    w = c.weights
+    shares = {"corner": w.corner_fraction, "edge": w.edge_fraction, "axis": w.axis_fraction}
+    shares["adaptive"] = w.adaptive_fraction
+    mix = "".join(f", {name} {100 * share:.0f}%" for name, share in shares.items() if share > 0)
+    return f"w ~ Dirichlet({w.alpha:g}) per episode{mix}"
 
 
 #: The command-line flag of each config field ``train`` takes as an option (named in errors).

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from amorctl.core.errors import AmorError
 from amorctl.core.model_source import (  # the model-path bits; re-exported here for plugins
     ModelSource,
     PackageModel,
@@ -26,6 +27,7 @@ __all__ = [
     "JOINT_GROUPS", "KEYPOINTS", "ActuatorModel", "BackendSpec", "CharacterSpec", "ImportOptions",
     "JointGroup", "JointSpec", "LazyCharacter", "ModelSource", "MotionFormatSpec", "ObjectiveSetSpec",
     "PackageModel", "describe_model_source", "find_package_file", "package_model", "resolve_model_source",
+    "set_mjcf_reader",
 ]  # fmt: skip
 
 if TYPE_CHECKING:
@@ -33,6 +35,17 @@ if TYPE_CHECKING:
 
 JointGroup = Literal["upper", "lower", "feet"]
 JOINT_GROUPS: tuple[JointGroup, ...] = ("upper", "lower", "feet")
+
+#: The reader behind :meth:`CharacterSpec.from_mjcf`. Reading a model needs MuJoCo, which core/
+#: does not import: :mod:`amorctl.sim.from_mjcf` installs ``character_from_mjcf`` here when it is
+#: imported (``amorctl.api`` imports it, so every plugin has it).
+_MJCF_READER: list[Callable[..., CharacterSpec]] = []
+
+
+def set_mjcf_reader(reader: Callable[..., CharacterSpec]) -> None:
+    """Install the function :meth:`CharacterSpec.from_mjcf` calls (done by ``amorctl.sim.from_mjcf``)."""
+    _MJCF_READER[:] = [reader]
+
 
 #: Canonical key points that motion retargeting matches between a source skeleton and a character.
 KEYPOINTS: tuple[str, ...] = ("root", "head", "left_hand", "right_hand", "left_foot", "right_foot")
@@ -124,6 +137,22 @@ class CharacterSpec:
         state["_mjcf_path_source"] = self.mjcf_path
         state.pop("_mjcf_path_resolved", None)
         return state
+
+    @classmethod
+    def from_mjcf(cls, path: ModelSource, **options: Any) -> CharacterSpec:
+        """A spec whose joints, ranges, gains, limits and standing pose are read from the model file:
+        ``amorctl.api.character_from_mjcf(path, **options)`` (``name``, ``groups``,
+        ``end_effectors``, ``keypoints`` and what the file cannot say; docs/plugins.md).
+
+        Raises:
+            AmorError: a model or argument defect, one line naming the file; or amorctl's model
+                reader is not loaded (``CharacterSpec`` imported from ``amorctl.core`` alone).
+        """
+        if not _MJCF_READER:
+            raise AmorError(
+                "CharacterSpec.from_mjcf: import CharacterSpec from amorctl.api (it loads the model reader)"
+            )
+        return _MJCF_READER[0](path, **options)
 
     @property
     def model_source(self) -> ModelSource:

@@ -112,10 +112,10 @@ class WeightSampler:
         w[rows[axis], pick[axis]] = level[axis]
         adaptive = kind == 3
         anchor = rng.choice(len(self.anchors), size=n, p=self.anchor_probabilities())
-        noise = rng.dirichlet(np.ones(m), size=n)
+        noise = sample_dirichlet(rng, n, m, dtype=np.float64)
         w[adaptive] = (1 - JITTER) * self.anchors[anchor[adaptive]] + JITTER * noise[adaptive]
         rest = kind == 4
-        w[rest] = rng.dirichlet(np.full(m, self.alpha), size=n)[rest]
+        w[rest] = sample_dirichlet(rng, n, m, self.alpha, dtype=np.float64)[rest]
         return (w / w.sum(axis=1, keepdims=True)).astype(np.float32)
 
     def anchor_probabilities(self) -> np.ndarray:

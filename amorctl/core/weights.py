@@ -102,16 +102,25 @@ def normalize_weights(raw: np.ndarray, *, source: str = "weights") -> np.ndarray
     return scaled / scaled.sum(axis=-1, keepdims=True)
 
 
-def sample_dirichlet(rng: np.random.Generator, n: int, m: int, alpha: float = 1.0) -> np.ndarray:
+def sample_dirichlet(
+    rng: np.random.Generator, n: int, m: int, alpha: float = 1.0, dtype: type = np.float32
+) -> np.ndarray:
     """Draw n weight vectors from Dirichlet(alpha) over m objectives (alpha=1: uniform on the simplex).
 
+    amorctl's one numpy Dirichlet sampler: env episodes, sweeps, the weight-sampling levers,
+    coverage designs and export checks all draw through it (the jax-mjx backend draws on device
+    with ``jax.random.dirichlet``). With m = 1 every row is ``[1]`` and ``rng`` is not advanced.
+
+    Args:
+        dtype: of the result; float32 (what envs hand the policy) or float64 (numpy's own draw).
+
     Returns:
-        [n, m] float32, each row on the simplex.
+        [n, m] ``dtype``, each row on the simplex.
     """
     if m == 1:
-        return np.ones((n, 1), dtype=np.float32)
+        return np.ones((n, 1), dtype=dtype)
     w = rng.dirichlet(np.full(m, alpha), size=n)
-    return w.astype(np.float32)
+    return w.astype(dtype)
 
 
 def format_weights(w: np.ndarray, names: Sequence[str]) -> str:

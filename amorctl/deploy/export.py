@@ -33,6 +33,7 @@ from amorctl import __version__
 from amorctl.core.contracts import Policy, Snapshot, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
+from amorctl.core.weights import sample_dirichlet
 from amorctl.deploy.bundle import (
     CONTEXT_PARTS,
     META_FILE,
@@ -245,7 +246,8 @@ def parity_observations(
     rng = np.random.default_rng(seed)
     n = samples + m + 1
     obs = mean + scale * rng.normal(0.0, 3.0, size=(n, mean.shape[0]))
-    w = np.concatenate([np.eye(m), np.full((1, m), 1.0 / m), rng.dirichlet(np.ones(m), size=samples)])
+    draws = sample_dirichlet(rng, samples, m, dtype=np.float64)  # [samples, m]
+    w = np.concatenate([np.eye(m), np.full((1, m), 1.0 / m), draws])
     obs[:, -m:] = w
     return obs.astype(np.float32)
 
@@ -280,6 +282,140 @@ def _check_out(out: Path) -> None:
         raise AmorError(f"{out}: directory {out.parent} does not exist")
 
 
+@dataclasses.dataclass(frozen=True)
+class ActionPlan:
+    """How the exported graph turns the policy's action into its outputs.
+
+    mode: ``"raw"`` (the action as is; no character) or the run's ``env.action_mode``; low/high:
+    [J] joint ranges (clip of the PD target); ref: (index of the ``ref_frame`` input, first and
+    last column of its joint angles) for residual actions; ref_cols: those columns in the whole
+    observation; joints/ees: the character's joint and end-effector names (empty without one).
+    """
+
+    mode: str = "raw"
+    low: np.ndarray | None = None
+    high: np.ndarray | None = None
+    ref: tuple[int, int, int] | None = None
+    ref_cols: tuple[int, int] | None = None
+    joints: list[str] = dataclasses.field(default_factory=list)
+    ees: list[str] = dataclasses.field(default_factory=list)
+
+
+def _action_plan(
+    spec: CharacterSpec | None, action_mode: str, layout: Mapping[str, Any], groups: Mapping[str, Any]
+) -> ActionPlan:
+    """The :class:`ActionPlan` of a policy for ``spec`` (None: an env without a character).
+
+    Raises:
+        AmorError: a residual-action policy without a ``ref_frame`` in its observation.
+    """
+    if spec is None:
+        return ActionPlan()
+    joints, ees = list(spec.joint_names()), list(spec.end_effectors)
+    low = np.array([j.range[0] for j in spec.joints])
+    high = np.array([j.range[1] for j in spec.joints])
+    ref, ref_cols = None, None
+    if action_mode == "residual":
+        if "ref_frame" not in layout:
+            raise AmorError(
+                "residual-action policy without a ref_frame in its observation cannot be exported"
+            )
+        a = layout["ref_frame"][0] + FRAME_JOINT_OFFSET
+        ref_cols = (a, a + len(joints))
+        k = list(groups).index("ref_frame")
+        ref = (k, FRAME_JOINT_OFFSET, FRAME_JOINT_OFFSET + len(joints))
+    return ActionPlan(action_mode, low, high, ref, ref_cols, joints, ees)
+
+
+def _io_tables(
+    groups: Mapping[str, Any],
+    out_names: list[str],
+    joints: list[str],
+    ees: list[str],
+    names: list[str],
+    action_dim: int,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The bundle's ``inputs`` and ``outputs`` tables: per ONNX input its shape, the observation
+    parts it holds (``[start, stop)``) and element names; per output its shape and element names."""
+    inputs = {
+        name: {
+            "shape": ["batch", sum(b - a for _, a, b in parts)],
+            "parts": {p: [a, b] for p, a, b in parts},
+            "elements": [e for p, a, b in parts for e in part_element_names(p, b - a, joints, ees, names)],
+        }
+        for name, parts in groups.items()
+    }
+    outputs = {
+        n: {"shape": ["batch", action_dim], "elements": joints or [f"action/{i}" for i in range(action_dim)]}
+        for n in out_names
+    }
+    return inputs, outputs
+
+
+def _store_metadata(onnx_path: Path, meta: Mapping[str, Any]) -> None:
+    """Write ``meta`` into the ONNX file's metadata (each value as JSON), checked, in place."""
+    import onnx
+
+    model = onnx.load(str(onnx_path))
+    del model.metadata_props[:]
+    for key, value in meta.items():
+        prop = model.metadata_props.add()
+        prop.key, prop.value = key, json.dumps(value)
+    model.producer_name, model.producer_version = "amorctl", __version__
+    onnx.checker.check_model(model)
+    onnx.save(model, str(onnx_path))
+
+
+def _export_checked(
+    module: nn.Module,
+    onnx_path: Path,
+    input_names: list[str],
+    out_names: list[str],
+    feeds: Mapping[str, np.ndarray],
+    want: Mapping[str, np.ndarray],
+    tolerance: float,
+) -> float:
+    """Export ``module`` to ``onnx_path`` and run it in onnxruntime on ``feeds`` (per input [K, d]).
+
+    Returns:
+        The largest absolute difference from the torch policy's outputs ``want``.
+
+    Raises:
+        AmorError: that difference is over ``tolerance`` (or not finite).
+    """
+    example = tuple(torch.from_numpy(feeds[n][:2]) for n in input_names)
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            module, example, str(onnx_path), dynamo=False, opset_version=OPSET,
+            input_names=input_names, output_names=out_names,
+            dynamic_axes={n: {0: "batch"} for n in [*input_names, *out_names]},
+        )  # fmt: skip
+    got = dict(zip(out_names, open_session(onnx_path).run(out_names, dict(feeds)), strict=True))
+    delta = max(float(np.max(np.abs(got[n].astype(np.float64) - want[n]))) for n in out_names)
+    if not np.isfinite(delta) or delta > tolerance:
+        samples = len(next(iter(feeds.values())))
+        raise AmorError(
+            f"export parity check failed: onnxruntime differs from the torch policy by {delta:.3g} "
+            f"(tolerance {tolerance:g}) on {samples} observations; nothing written"
+        )
+    return delta
+
+
+def _write_motions(folder: Path, run: RunDir, layout: Mapping[str, Any]) -> dict[str, Any]:
+    """Write the run's reference motions to ``folder/motions.npz``; return the metadata naming it.
+
+    Raises:
+        AmorError: the dataset's frames do not fit the policy's ``ref_frame`` input.
+    """
+    arrays = motions_arrays(run)
+    if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
+        raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
+    np.savez(folder / MOTIONS_FILE, **arrays)
+    digest = hashlib.sha256((folder / MOTIONS_FILE).read_bytes()).hexdigest()
+    return {"file": MOTIONS_FILE, "sha256": digest, "clips": arrays["clip_names"].tolist()}
+
+
 def export_bundle(
     run_path: str | Path,
     out: str | Path,
@@ -294,8 +430,6 @@ def export_bundle(
         AmorError: no run or checkpoint, ``out`` exists, the policy cannot be exported, or the
             onnxruntime/torch parity check fails (nothing is written then).
     """
-    import onnx
-
     out = Path(out)
     _check_out(out)
     run = RunDir.open(run_path)
@@ -317,41 +451,11 @@ def export_bundle(
         layout = dict(policy.observation_layout)
     groups, pieces = plan_inputs(layout, obs_dim, m)
 
-    action_mode, low, high, ref, ref_cols = "raw", None, None, None, None
-    joints: list[str] = []
-    ees: list[str] = []
-    if spec is not None:
-        action_mode = run.config.env.action_mode
-        joints, ees = list(spec.joint_names()), list(spec.end_effectors)
-        low = np.array([j.range[0] for j in spec.joints])
-        high = np.array([j.range[1] for j in spec.joints])
-        if action_mode == "residual":
-            if "ref_frame" not in layout:
-                raise AmorError(
-                    "residual-action policy without a ref_frame in its observation cannot be exported"
-                )
-            a = layout["ref_frame"][0] + FRAME_JOINT_OFFSET
-            ref_cols = (a, a + len(joints))
-            k = list(groups).index("ref_frame")
-            ref = (k, FRAME_JOINT_OFFSET, FRAME_JOINT_OFFSET + len(joints))
-
+    plan = _action_plan(spec, run.config.env.action_mode, layout, groups)
+    action_mode, low, high, ref, ref_cols = plan.mode, plan.low, plan.high, plan.ref, plan.ref_cols
     module = ExportModule(arrays, snap_meta, pieces, action_mode, ref, low, high).eval()
-    inputs = {
-        name: {
-            "shape": ["batch", sum(b - a for _, a, b in parts)],
-            "parts": {p: [a, b] for p, a, b in parts},
-            "elements": [e for p, a, b in parts for e in part_element_names(p, b - a, joints, ees, names)],
-        }
-        for name, parts in groups.items()
-    }
     out_names = ["action"] if action_mode == "raw" else ["pd_target", "action"]
-    outputs = {
-        n: {
-            "shape": ["batch", policy.action_dim],
-            "elements": joints or [f"action/{i}" for i in range(policy.action_dim)],
-        }
-        for n in out_names
-    }
+    inputs, outputs = _io_tables(groups, out_names, plan.joints, plan.ees, names, policy.action_dim)
 
     obs = parity_observations(arrays["normalizer/mean"], arrays["normalizer/scale"], m, samples)
     want = reference_outputs(policy, obs, action_mode, ref_cols, low, high)
@@ -360,21 +464,7 @@ def export_bundle(
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         onnx_path = tmp / ONNX_FILE
-        example = tuple(torch.from_numpy(feeds[n][:2]) for n in groups)
-        with warnings.catch_warnings(), torch.no_grad():
-            warnings.simplefilter("ignore")
-            torch.onnx.export(
-                module, example, str(onnx_path), dynamo=False, opset_version=OPSET,
-                input_names=list(groups), output_names=out_names,
-                dynamic_axes={n: {0: "batch"} for n in [*groups, *out_names]},
-            )  # fmt: skip
-        got = dict(zip(out_names, open_session(onnx_path).run(out_names, feeds), strict=True))
-        delta = max(float(np.max(np.abs(got[n].astype(np.float64) - want[n]))) for n in out_names)
-        if not np.isfinite(delta) or delta > tolerance:
-            raise AmorError(
-                f"export parity check failed: onnxruntime differs from the torch policy by {delta:.3g} "
-                f"(tolerance {tolerance:g}) on {len(obs)} observations; nothing written"
-            )
+        delta = _export_checked(module, onnx_path, list(groups), out_names, feeds, want, tolerance)
         meta = bundle_metadata(
             run=run, iteration=int(ckpt.iteration), objectives=names, inputs=inputs, outputs=outputs,
             layout=layout, action_mode=action_mode, out_names=out_names, ref=ref, spec=spec,
@@ -383,20 +473,8 @@ def export_bundle(
             parity={"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
         )  # fmt: skip
         if spec is not None:
-            arrays = motions_arrays(run)
-            if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
-                raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
-            np.savez(tmp / MOTIONS_FILE, **arrays)
-            digest = hashlib.sha256((tmp / MOTIONS_FILE).read_bytes()).hexdigest()
-            meta["motions"] = {"file": MOTIONS_FILE, "sha256": digest, "clips": arrays["clip_names"].tolist()}
-        model = onnx.load(str(onnx_path))
-        del model.metadata_props[:]
-        for key, value in meta.items():
-            prop = model.metadata_props.add()
-            prop.key, prop.value = key, json.dumps(value)
-        model.producer_name, model.producer_version = "amorctl", __version__
-        onnx.checker.check_model(model)
-        onnx.save(model, str(onnx_path))
+            meta["motions"] = _write_motions(tmp, run, layout)
+        _store_metadata(onnx_path, meta)
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1) + "\n")
         umask = os.umask(0)
         os.umask(umask)

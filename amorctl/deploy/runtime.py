@@ -132,6 +132,29 @@ class EpisodeResult:
         }
 
 
+@dataclass
+class _Episode:
+    """What :meth:`Runtime.run` keeps over one episode: ``t`` the current tick's time (s), the
+    watchdog's state, the motion clock (``motion_steps``) and the figures of the result."""
+
+    record: bool
+    reward_sum: np.ndarray  # [m]
+    t: float = 0.0
+    events: list[Event] = field(default_factory=list)
+    records: list[TickRecord] = field(default_factory=list)
+    policy_ms: list[float] = field(default_factory=list)
+    errors: list[float] = field(default_factory=list)
+    rates: list[float] = field(default_factory=list)
+    motion_steps: int = 0
+    misses: int = 0
+    held_steps: int = 0
+    latched: bool = False
+    stale_now: bool = False
+    diverged: bool = False
+    fell_at: float | None = None
+    last_sent: np.ndarray | None = None
+
+
 class Runtime:
     """A bundle's policy on its character in MuJoCo (module docstring).
 
@@ -277,28 +300,12 @@ class Runtime:
             raise AmorError(f"schedule {weights.source} is for objectives {list(weights.objective_names)}")
         n_steps = max(1, int(np.ceil(seconds / self.dt - 1e-9)))
         dynamics = self.reset(clip, seed)
-
-        events: list[Event] = []
-        records: list[TickRecord] = []
-        policy_ms: list[float] = []
-        errors, rates = [], []
-        reward_sum = np.zeros(self.m)
-        motion_steps, misses, held_steps = 0, 0, 0
-        latched, stale_now, diverged = False, False, False
-        fell_at: float | None = None
-        last_sent: np.ndarray | None = None
-
-        def emit(event: Event) -> None:
-            events.append(event)
-            if self.logger is not None:
-                self.logger.event(event)
-
+        ep = _Episode(record=record, reward_sum=np.zeros(self.m))
         if live is not None:
-            live.on_reject = lambda msg: emit(Event(t_now, "rejected_input", msg))
-        t_now = 0.0
+            live.on_reject = lambda msg: self._emit(ep, Event(ep.t, "rejected_input", msg))
         start = self.clock()
         for k in range(n_steps):
-            t_now = k * self.dt
+            ep.t = t_now = k * self.dt
             if should_stop is not None and should_stop():
                 break
             deadline = None
@@ -308,109 +315,146 @@ class Runtime:
                 if wait > 0:
                     self.sleep(wait)
                 deadline = tick_start + self.dt
-            if live is not None:
-                live.poll()
-                w = live.weights
-                stale = live.stale()
-                if stale != stale_now:
-                    detail = f"no valid message for > {live.stale_timeout:g} s" if stale else ""
-                    emit(Event(t_now, "stale_input" if stale else "input_restored", detail))
-                    stale_now = stale
-            else:
-                w = weights_at(weights, motion_steps * self.dt, name)
-            hold = latched or stale_now
-            target = None
-            if not hold:
-                obs = self.observation(w.astype(np.float32))
-                t0 = self.clock()
-                out = self.policy(self.feeds(obs))[self.output][0].astype(np.float64)
-                t1 = self.clock()
-                policy_ms.append(1e3 * (t1 - t0))
-                if deadline is not None and t1 > deadline:
-                    misses += 1
-                    emit(Event(t_now, "deadline_miss", f"policy result {1e3 * (t1 - deadline):.2f} ms late"))
-                    if misses >= self.max_misses and not latched:
-                        latched = True
-                        emit(Event(t_now, "watchdog_latched", f"{misses} deadline misses in a row; holding"))
-                    hold = True
-                elif not np.isfinite(out).all():
-                    emit(Event(t_now, "bad_action", "non-finite policy output; holding"))
-                    hold = True
-                else:
-                    misses = 0
-                    target = np.clip(out, self.sim.joint_low, self.sim.joint_high)
-            if hold:
+            w = self._tick_weights(ep, weights, live, name)
+            hold = ep.latched or ep.stale_now
+            target = None if hold else self._act(ep, w, deadline)
+            if target is None:  # held by the watchdog, a late result or a bad action
+                hold = True
                 target = self.target_prev.copy()
-                held_steps += 1
-            assert target is not None
+                ep.held_steps += 1
             self.pending.append(target)
             sent = self.pending[0]
-            if t_now + 1e-9 >= self.next_push:
-                angle = self.push_rng.uniform(0.0, 2.0 * np.pi)
-                force = self.push_rng.uniform(*self.dyn.push_force)
-                duration = self.push_rng.uniform(*self.dyn.push_duration)
-                self.sim.push(force * np.array([np.cos(angle), np.sin(angle)]), duration)
-                emit(
-                    Event(t_now, "push", f"{force:.2f} N for {duration:.2f} s at {np.degrees(angle):.0f} deg")
-                )
-                self.next_push = t_now + self._push_gap()
+            self._maybe_push(ep)
             div = self.sim.step(sent, hold=hold)
-            reached = self.ref_idx if hold else self.ref_idx + 1
-            jp = self.sim.joint_pos()
-            ref_jp = self.motions.joint_pos[reached]
-            errors.append(np.abs(jp - ref_jp).mean())
-            if last_sent is not None:
-                rates.append(float(((target - last_sent) ** 2).sum()))
-            last_sent = target
-            jv = self.sim.joint_vel()
-            fell = self.sim.root_height() < self.motions.root_pos[reached, 2] - self.fall_drop
-            r = None
-            if self.reward_meter is not None:
-                r = self.reward_meter(
-                    self.sim.frame(), int(reached), self.sim.torque, target, self.target_prev,
-                    self.target_prev2, (jv - self.joint_vel_prev) / self.dt, alive=not fell, diverged=div,
-                )  # fmt: skip
-                reward_sum += r
-            self.joint_vel_prev = jv
-            self.target_prev2, self.target_prev = self.target_prev, target
-            rec = TickRecord(t=t_now, weights=np.asarray(w, dtype=np.float64).copy(), pd_target=target.copy(),
-                             joint_pos=jp, joint_vel=jv, ref_joint_pos=ref_jp.copy(),
-                             frame=int(reached), qpos=self.sim.qpos, held=hold, rewards=r)  # fmt: skip
-            if record:
-                records.append(rec)
-            if self.logger is not None:
-                self.logger.tick(rec)
+            reached, fell = self._track(ep, w, target, hold, div)
             if not hold:
-                motion_steps += 1
+                ep.motion_steps += 1
                 self.ref_idx = reached
                 if reached >= self.clip_end - 1:  # the clip ended: the reference starts it again
                     self.ref_idx = self.clip_start
             if div or fell:
-                emit(Event(t_now + self.dt, "diverged" if div else "fell", f"frame {reached}"))
-                diverged |= div
-                if fell_at is None and not div:
-                    fell_at = t_now + self.dt
+                self._emit(ep, Event(t_now + self.dt, "diverged" if div else "fell", f"frame {reached}"))
+                ep.diverged |= div
+                if ep.fell_at is None and not div:
+                    ep.fell_at = t_now + self.dt
                 if stop_on_fall or div:
                     break
                 dynamics = self.reset(clip, seed)
                 self.next_push += t_now + self.dt  # reset() schedules from the episode's start
-                motion_steps, misses = 0, 0  # a new episode: the schedule's clock restarts
-        steps = len(errors)
+                ep.motion_steps, ep.misses = 0, 0  # a new episode: the schedule's clock restarts
+        return self._result(ep, name, dynamics, live)
+
+    def _emit(self, ep: _Episode, event: Event) -> None:
+        ep.events.append(event)
+        if self.logger is not None:
+            self.logger.event(event)
+
+    def _tick_weights(
+        self, ep: _Episode, weights: np.ndarray | Schedule | UdpWeights, live: UdpWeights | None, name: str
+    ) -> np.ndarray:
+        """The weights [m] in force this tick: the newest live message (noting the input going stale
+        or coming back), else the constant vector or the schedule at the motion clock."""
+        if live is None:
+            return weights_at(weights, ep.motion_steps * self.dt, name)
+        live.poll()
+        stale = live.stale()
+        if stale != ep.stale_now:
+            detail = f"no valid message for > {live.stale_timeout:g} s" if stale else ""
+            self._emit(ep, Event(ep.t, "stale_input" if stale else "input_restored", detail))
+            ep.stale_now = stale
+        return live.weights
+
+    def _act(self, ep: _Episode, w: np.ndarray, deadline: float | None) -> np.ndarray | None:
+        """The policy's PD targets [J] for weights ``w`` [m], clamped to the joint ranges; None when
+        the result came after ``deadline`` (``max_misses`` in a row latch the hold) or is not finite."""
+        obs = self.observation(w.astype(np.float32))
+        t0 = self.clock()
+        out = self.policy(self.feeds(obs))[self.output][0].astype(np.float64)
+        t1 = self.clock()
+        ep.policy_ms.append(1e3 * (t1 - t0))
+        if deadline is not None and t1 > deadline:
+            ep.misses += 1
+            self._emit(ep, Event(ep.t, "deadline_miss", f"policy result {1e3 * (t1 - deadline):.2f} ms late"))
+            if ep.misses >= self.max_misses and not ep.latched:
+                ep.latched = True
+                self._emit(
+                    ep, Event(ep.t, "watchdog_latched", f"{ep.misses} deadline misses in a row; holding")
+                )
+            return None
+        if not np.isfinite(out).all():
+            self._emit(ep, Event(ep.t, "bad_action", "non-finite policy output; holding"))
+            return None
+        ep.misses = 0
+        return np.clip(out, self.sim.joint_low, self.sim.joint_high)
+
+    def _maybe_push(self, ep: _Episode) -> None:
+        """Push the root (random direction, force and duration) when the next push is due."""
+        if ep.t + 1e-9 < self.next_push:
+            return
+        angle = self.push_rng.uniform(0.0, 2.0 * np.pi)
+        force = self.push_rng.uniform(*self.dyn.push_force)
+        duration = self.push_rng.uniform(*self.dyn.push_duration)
+        self.sim.push(force * np.array([np.cos(angle), np.sin(angle)]), duration)
+        self._emit(
+            ep, Event(ep.t, "push", f"{force:.2f} N for {duration:.2f} s at {np.degrees(angle):.0f} deg")
+        )
+        self.next_push = ep.t + self._push_gap()
+
+    def _track(
+        self, ep: _Episode, w: np.ndarray, target: np.ndarray, hold: bool, div: bool
+    ) -> tuple[int, bool]:
+        """Measure the step just taken against the reference frame it reached (errors, action rate,
+        rewards), remember the targets and velocities the next observation needs, record the tick.
+
+        Returns:
+            (the reference frame reached, whether the character fell).
+        """
+        reached = self.ref_idx if hold else self.ref_idx + 1
+        jp = self.sim.joint_pos()
+        ref_jp = self.motions.joint_pos[reached]
+        ep.errors.append(np.abs(jp - ref_jp).mean())
+        if ep.last_sent is not None:
+            ep.rates.append(float(((target - ep.last_sent) ** 2).sum()))
+        ep.last_sent = target
+        jv = self.sim.joint_vel()
+        fell = self.sim.root_height() < self.motions.root_pos[reached, 2] - self.fall_drop
+        r = None
+        if self.reward_meter is not None:
+            r = self.reward_meter(
+                self.sim.frame(), int(reached), self.sim.torque, target, self.target_prev,
+                self.target_prev2, (jv - self.joint_vel_prev) / self.dt, alive=not fell, diverged=div,
+            )  # fmt: skip
+            ep.reward_sum += r
+        self.joint_vel_prev = jv
+        self.target_prev2, self.target_prev = self.target_prev, target
+        rec = TickRecord(t=ep.t, weights=np.asarray(w, dtype=np.float64).copy(), pd_target=target.copy(),
+                         joint_pos=jp, joint_vel=jv, ref_joint_pos=ref_jp.copy(),
+                         frame=int(reached), qpos=self.sim.qpos, held=hold, rewards=r)  # fmt: skip
+        if ep.record:
+            ep.records.append(rec)
+        if self.logger is not None:
+            self.logger.tick(rec)
+        return reached, fell
+
+    def _result(
+        self, ep: _Episode, name: str, dynamics: dict[str, Any], live: UdpWeights | None
+    ) -> EpisodeResult:
+        steps = len(ep.errors)
         return EpisodeResult(
             motion=name,
             steps=steps,
             seconds=steps * self.dt,
-            fell_at=fell_at,
-            diverged=diverged,
-            joint_mae_deg=float(np.degrees(np.mean(errors))) if errors else float("nan"),
-            action_rate=float(np.mean(rates)) if rates else 0.0,
-            policy_ms=policy_ms,
-            events=events,
-            held_steps=held_steps,
+            fell_at=ep.fell_at,
+            diverged=ep.diverged,
+            joint_mae_deg=float(np.degrees(np.mean(ep.errors))) if ep.errors else float("nan"),
+            action_rate=float(np.mean(ep.rates)) if ep.rates else 0.0,
+            policy_ms=ep.policy_ms,
+            events=ep.events,
+            held_steps=ep.held_steps,
             input=None if live is None else live.stats.to_dict(),
             dynamics=dynamics,
-            records=records,
+            records=ep.records,
             returns=None
             if self.reward_meter is None
-            else dict(zip(self.names, reward_sum.tolist(), strict=True)),
+            else dict(zip(self.names, ep.reward_sum.tolist(), strict=True)),
         )

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from amorctl.core.contracts import tracking_view
+from amorctl.core.env_random import Seed
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 
@@ -67,7 +68,8 @@ class FixedWeights:
         obs[:, -self._tiled.shape[1] :] = self._tiled
         return obs
 
-    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, seed: Seed = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """The wrapped env's reset (``seed``: one int, or [N] ints, one per env) with these weights."""
         obs, info = self.env.reset(seed=seed)
         return self._patch(obs), info
 

@@ -96,17 +96,19 @@ def pareto_figure(sweep: Any, paths: list[Path]) -> None:
     handles.append(Line2D([], [], marker="x", color="black", linestyle="", markersize=8, markeredgewidth=2))
     labels.append("equal weights (1/m), motion's colour")
     handles.append(Line2D([], [], marker="v", color="0.45", linestyle="", markersize=7))
-    labels.append(f"fell in every episode: {fallen} of {total} (pinned to the lower-left edge)")
+    where = "pinned to the lower-left edge" if fallen < total else "no survivor: drawn as dots"
+    labels.append(f"fell in every episode: {fallen} of {total} ({where})")
     if m <= 2:
         axes[0][0].legend(handles, labels, fontsize=8, loc="best")
     else:  # the empty upper-right triangle holds the legend
         fig.subplots_adjust(top=0.95)
         fig.legend(handles, labels, loc="upper right", bbox_to_anchor=(0.98, 0.93), fontsize=9, frameon=False)
     zoom = "axes span the survivors" if fallen < total else "no survivor: all points, unzoomed"
+    among = "survivors" if fallen < total else "all points"
     fig.suptitle(
         f"Pareto front: {k} weight vectors ({sweep.sampling}), {sweep.episodes} episode(s) each; "
         f"{total - fallen} of {total} survived, {fallen} fell; {zoom}; "
-        "outlined: non-dominated among survivors in the panel's pair",
+        f"outlined: non-dominated among {among} in the panel's pair",
         fontsize=9,
     )
     _save(fig, paths)

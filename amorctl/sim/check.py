@@ -135,13 +135,31 @@ def check_character(
         )
     )
 
-    # Actuators and order.
+    checks.append(_actuators_check(character, raw, table["actuators"]))
+    checks.append(_floor_check(character, bool(table["floor"])))
+    checks.append(_sensors_check(character, raw, model))
+    checks.append(_gains_check(character, raw, table["actuators"]))
+    checks.append(_ranges_check(character, raw))
+    checks.append(_standing_check(character, model))
+    if hold:
+        result = hold_runner(character)
+        checks.append(_hold_check(character, result))
+        if reference is not None and smooth_torque_scale is not None:
+            checks.append(
+                _smooth_suggestion(character, model, result, reference, smooth_torque_scale, hold_runner)
+            )
+    return checks
+
+
+def _actuators_check(character: CharacterSpec, raw: mujoco.MjModel, acts: Mapping[str, str]) -> Check:
+    """Every spec joint has its actuator; the spec's order against the model's qpos and actuator
+    order; hinges without an actuator (they keep ``qpos0``)."""
     names = list(character.joint_names())
     qpos_order = sorted(names, key=lambda n: int(raw.jnt_qposadr[raw.joint(n).id]))
-    act_order = sorted(names, key=lambda n: raw.actuator(table["actuators"][n]).id)
+    act_order = sorted(names, key=lambda n: raw.actuator(acts[n]).id)
     hinges = [raw.joint(j).name for j in range(raw.njnt) if raw.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
     passive = [h for h in hinges if h not in names]
-    renamed = {j: a for j, a in table["actuators"].items() if a != j}
+    renamed = {j: a for j, a in acts.items() if a != j}
     detail = f"{len(names)} joints, each with its actuator"
     if renamed:
         detail += f" ({len(renamed)} found by transmission, e.g. {next(iter(renamed.items()))})"
@@ -152,71 +170,54 @@ def check_character(
         detail += "; the model's actuator order differs from the joint order (mapped by name)"
     if passive:
         status, detail = "warn", detail + f"; unactuated hinges keep qpos0: {_fmt_list(passive)}"
-    checks.append(
-        Check(
-            "actuators",
-            status,
-            detail,
-            {"qpos_order": qpos_order == names, "actuator_order": act_order == names},
-        )
+    return Check(
+        "actuators", status, detail, {"qpos_order": qpos_order == names, "actuator_order": act_order == names}
     )
 
-    # Floor.
-    if table["floor"]:
-        checks.append(Check("floor", "pass", "the model has its own floor"))
-    elif character.add_floor:
-        checks.append(
-            Check("floor", "pass", f"none in the model: amorctl adds plane {FLOOR_NAME!r} at z = 0")
-        )
-    else:
-        checks.append(Check("floor", "fail", "no floor in the model and add_floor=False: it falls forever"))
 
-    # Sensors: resolved by name, and reading what kinematics says.
+def _floor_check(character: CharacterSpec, model_has_floor: bool) -> Check:
+    if model_has_floor:
+        return Check("floor", "pass", "the model has its own floor")
+    if character.add_floor:
+        return Check("floor", "pass", f"none in the model: amorctl adds plane {FLOOR_NAME!r} at z = 0")
+    return Check("floor", "fail", "no floor in the model and add_floor=False: it falls forever")
+
+
+def _sensors_check(character: CharacterSpec, raw: mujoco.MjModel, model: mujoco.MjModel) -> Check:
+    """amorctl's sensors resolve by name and read what kinematics says (end effectors at qpos0)."""
     try:
         adr = sensor_addresses(model, character)
-        data = mujoco.MjData(model)
-        data.qpos[:] = model.qpos0
-        mujoco.mj_forward(model, data)
-        ids = [model.body(b).id for b in character.end_effectors]
-        err = float(np.abs(data.sensordata[adr.ee[:, :3]] - data.xpos[ids]).max())
-        own = int(raw.nsensor)
-        ok = err < 1e-9
-        checks.append(
-            Check(
-                "sensors",
-                "pass" if ok else "fail",
-                f"{own} model sensor(s) kept; amorctl's {adr.ee.size + adr.torque.size} values at sensordata "
-                f"[{int(adr.ee.min())}..{int(max(adr.ee.max(), adr.torque.max(initial=0)))}] "
-                + ("read the body positions" if ok else f"differ from body positions by {err:.3g} m"),
-                {"model_sensors": own, "first_address": int(adr.ee.min()), "max_error_m": err},
-            )
-        )
     except AmorError as exc:
-        checks.append(Check("sensors", "fail", str(exc)))
+        return Check("sensors", "fail", str(exc))
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    mujoco.mj_forward(model, data)
+    ids = [model.body(b).id for b in character.end_effectors]
+    err = float(np.abs(data.sensordata[adr.ee[:, :3]] - data.xpos[ids]).max())
+    own = int(raw.nsensor)
+    ok = err < 1e-9
+    return Check(
+        "sensors",
+        "pass" if ok else "fail",
+        f"{own} model sensor(s) kept; amorctl's {adr.ee.size + adr.torque.size} values at sensordata "
+        f"[{int(adr.ee.min())}..{int(max(adr.ee.max(), adr.torque.max(initial=0)))}] "
+        + ("read the body positions" if ok else f"differ from body positions by {err:.3g} m"),
+        {"model_sensors": own, "first_address": int(adr.ee.min()), "max_error_m": err},
+    )
 
-    checks.append(_gains_check(character, raw, table["actuators"]))
-    checks.append(_ranges_check(character, raw))
-    checks.append(_standing_check(character, model))
-    if hold:
-        result = hold_runner(character)
-        low = float(result.heights.min())
-        ok = not result.diverged and low > character.min_standing_height
-        checks.append(
-            Check(
-                "hold",
-                "pass" if ok else "fail",
-                f"{HOLD_SECONDS:g} s PD hold of the standing pose: root height min {low:.3f} m, "
-                f"end {result.heights[-1]:.3f} m (must stay > min_standing_height "
-                f"{character.min_standing_height:.3f} m)"
-                + ("; simulation diverged" if result.diverged else ""),
-                {"min_height_m": low, "end_height_m": float(result.heights[-1]), "diverged": result.diverged},
-            )
-        )
-        if reference is not None and smooth_torque_scale is not None:
-            checks.append(
-                _smooth_suggestion(character, model, result, reference, smooth_torque_scale, hold_runner)
-            )
-    return checks
+
+def _hold_check(character: CharacterSpec, result: HoldResult) -> Check:
+    """The PD hold of the standing pose keeps the root above ``min_standing_height``."""
+    low = float(result.heights.min())
+    ok = not result.diverged and low > character.min_standing_height
+    return Check(
+        "hold",
+        "pass" if ok else "fail",
+        f"{HOLD_SECONDS:g} s PD hold of the standing pose: root height min {low:.3f} m, "
+        f"end {result.heights[-1]:.3f} m (must stay > min_standing_height "
+        f"{character.min_standing_height:.3f} m)" + ("; simulation diverged" if result.diverged else ""),
+        {"min_height_m": low, "end_height_m": float(result.heights[-1]), "diverged": result.diverged},
+    )
 
 
 def _gains_check(character: CharacterSpec, raw: mujoco.MjModel, acts: Mapping[str, str]) -> Check:

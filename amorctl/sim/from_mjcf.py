@@ -37,6 +37,7 @@ from amorctl.core.specs import (
     ModelSource,
     find_package_file,
     resolve_model_source,
+    set_mjcf_reader,
 )
 from amorctl.sim.geom_bottom import lowest_point
 
@@ -344,3 +345,6 @@ def character_from_mjcf(
         licence=licence,
         add_floor=add_floor,
     )
+
+
+set_mjcf_reader(character_from_mjcf)  # CharacterSpec.from_mjcf calls it (core/ cannot import MuJoCo)

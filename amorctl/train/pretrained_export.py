@@ -29,6 +29,7 @@ from amorctl.core.config import to_toml
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
+from amorctl.core.weights import sample_dirichlet
 from amorctl.motion.heldout import run_dataset_path
 from amorctl.train import pretrained
 from amorctl.train.checkpoint import save_checkpoint
@@ -113,7 +114,7 @@ def _check_same_policy(original: Any, copy: Any, obs_dim: int, m: int) -> None:
     """The stripped policy must act and value exactly like the run's on random observations."""
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(_CHECK_SAMPLES, obs_dim)).astype(np.float32)
-    w = rng.dirichlet(np.ones(m), size=_CHECK_SAMPLES).astype(np.float32)
+    w = sample_dirichlet(rng, _CHECK_SAMPLES, m)
     obs[:, obs_dim - m :] = w  # the last m entries are the weights
     for what in ("actions", "values"):
         call = (lambda p: p(obs)) if what == "actions" else (lambda p: p.values(obs))

@@ -120,6 +120,60 @@ def verify_by_kinematics(
     return worst
 
 
+def _fps(path: Path, arrays: dict[str, np.ndarray]) -> float:
+    fps = np.asarray(arrays["fps"], dtype=np.float64).reshape(-1)
+    if fps.size != 1 or not np.isfinite(fps[0]) or fps[0] <= 0:
+        raise AmorError(f"{path}: 'fps' must be one positive number, got {arrays['fps']!r}")
+    return float(fps[0])
+
+
+def _body_poses(
+    path: Path, arrays: dict[str, np.ndarray], num_frames: int
+) -> tuple[list[str] | None, np.ndarray | None, np.ndarray | None]:
+    """(body_names, body_pos_w [T, B, 3], body_quat_w [T, B, 4]), checked; the arrays are None
+    unless the file has all three."""
+    body_names = _names(arrays, "body_names")
+    if not ("body_pos_w" in arrays and "body_quat_w" in arrays and body_names is not None):
+        return body_names, None, None
+    bpos = np.asarray(arrays["body_pos_w"], dtype=np.float64)
+    bquat = np.asarray(arrays["body_quat_w"], dtype=np.float64)
+    if bpos.shape != (num_frames, len(body_names), 3) or bquat.shape != (num_frames, len(body_names), 4):
+        raise AmorError(
+            f"{path}: body_pos_w {bpos.shape} / body_quat_w {bquat.shape} do not match "
+            f"{num_frames} frames and {len(body_names)} body_names"
+        )
+    check_finite(str(path), "body_pos_w", bpos)
+    check_finite(str(path), "body_quat_w", bquat)
+    return body_names, bpos, bquat
+
+
+def _root_pose(
+    path: Path,
+    options: ImportOptions,
+    first: int,
+    jpos: np.ndarray,
+    body_names: list[str] | None,
+    bpos: np.ndarray | None,
+    bquat: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """The root's positions [T, 3] and unit quaternions [T, 4] (from 7 root columns of
+    ``joint_pos`` [T, first + N], else the root body's poses) and the layout found."""
+    if first == ROOT_COLUMNS:
+        root_pos, root_quat, layout = jpos[:, :3].copy(), jpos[:, 3:7].copy(), "7 root + N joints"
+    elif bpos is not None and bquat is not None and body_names and options.root_body in body_names:
+        b = body_names.index(options.root_body)
+        root_pos, root_quat, layout = bpos[:, b].copy(), bquat[:, b].copy(), "joints + body poses"
+    else:
+        raise AmorError(
+            f"{path}: no root pose: joint_pos has no 7 root columns and there is no body named "
+            f"{options.root_body!r} (the root of {options.character!r}) in body_names/body_pos_w"
+        )
+    norms = np.linalg.norm(root_quat, axis=-1)
+    if (norms < 1e-6).any():
+        raise AmorError(f"{path}: zero root quaternion at frame {int(np.argmax(norms < 1e-6))}")
+    return root_pos, quat_normalize(root_quat), layout
+
+
 def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
     """Read a robot motion file and map it onto ``options.character`` (see the module docstring)."""
     if options.character is None or not options.joint_names or options.root_body is None:
@@ -132,10 +186,7 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
     for key in (*REQUIRED, "joint_vel", "body_pos_w", "body_quat_w"):
         if key in arrays and arrays[key].dtype.kind not in "biuf":
             raise AmorError(f"{path}: {key!r} must hold numbers, not {arrays[key].dtype}")
-    fps_arr = np.asarray(arrays["fps"], dtype=np.float64).reshape(-1)
-    if fps_arr.size != 1 or not np.isfinite(fps_arr[0]) or fps_arr[0] <= 0:
-        raise AmorError(f"{path}: 'fps' must be one positive number, got {arrays['fps']!r}")
-    fps = float(fps_arr[0])
+    fps = _fps(path, arrays)
     jpos = np.asarray(arrays["joint_pos"], dtype=np.float64)
     if jpos.ndim != 2 or jpos.shape[0] == 0:
         raise AmorError(
@@ -150,38 +201,14 @@ def load_npz(path: Path, options: ImportOptions) -> CharacterMotion:
         raise AmorError(
             f"{path}: joint_vel {np.shape(arrays['joint_vel'])} does not match joint_pos {jpos.shape}"
         )
-    body_names = _names(arrays, "body_names")
-    has_bodies = "body_pos_w" in arrays and "body_quat_w" in arrays and body_names is not None
-    bpos = bquat = None
-    if has_bodies:
-        bpos = np.asarray(arrays["body_pos_w"], dtype=np.float64)
-        bquat = np.asarray(arrays["body_quat_w"], dtype=np.float64)
-        if bpos.shape != (num_frames, len(body_names), 3) or bquat.shape != (num_frames, len(body_names), 4):
-            raise AmorError(
-                f"{path}: body_pos_w {bpos.shape} / body_quat_w {bquat.shape} do not match "
-                f"{num_frames} frames and {len(body_names)} body_names"
-            )
-        check_finite(str(path), "body_pos_w", bpos)
-        check_finite(str(path), "body_quat_w", bquat)
+    body_names, bpos, bquat = _body_poses(path, arrays, num_frames)
+    has_bodies = bpos is not None
     check_finite(str(path), "joint_pos", jpos)
     if "joint_vel" in arrays:
         check_finite(str(path), "joint_vel", np.asarray(arrays["joint_vel"], dtype=np.float64))
     times = np.arange(num_frames) / fps
     check_times(str(path), times)
-    if first == ROOT_COLUMNS:
-        root_pos, root_quat, layout = jpos[:, :3].copy(), jpos[:, 3:7].copy(), "7 root + N joints"
-    elif has_bodies and options.root_body in body_names:
-        b = body_names.index(options.root_body)
-        root_pos, root_quat, layout = bpos[:, b].copy(), bquat[:, b].copy(), "joints + body poses"
-    else:
-        raise AmorError(
-            f"{path}: no root pose: joint_pos has no 7 root columns and there is no body named "
-            f"{options.root_body!r} (the root of {options.character!r}) in body_names/body_pos_w"
-        )
-    norms = np.linalg.norm(root_quat, axis=-1)
-    if (norms < 1e-6).any():
-        raise AmorError(f"{path}: zero root quaternion at frame {int(np.argmax(norms < 1e-6))}")
-    root_quat = quat_normalize(root_quat)
+    root_pos, root_quat, layout = _root_pose(path, options, first, jpos, body_names, bpos, bquat)
     joint_pos = jpos[:, first:][:, cols].copy()
     stats: dict = {
         "npz_layout": layout,
