@@ -65,6 +65,23 @@ def test_mismatched_datasets_are_refused(tmp_path: Path) -> None:
     write_dataset(wide, dataclasses.replace(lib, z=np.zeros((lib.num_frames, 5), dtype=np.float32)))
     with pytest.raises(AmorError, match=r"latents have size 5, the run's 2.*no VAE encoder"):
         dataset_for_run(run_ds, wide)
+    # Same character, another joint order, frame rate and frame layout: each named.
+    other = tmp_path / "other.mcap"
+    frames = np.concatenate([lib.frames, np.zeros((lib.num_frames, 1), lib.frames.dtype)], axis=1)
+    write_dataset(
+        other,
+        dataclasses.replace(lib, joint_names=lib.joint_names[::-1], fps=lib.fps / 2, frames=frames),
+    )
+    with pytest.raises(AmorError) as info:
+        dataset_for_run(run_ds, other)
+    message = str(info.value)
+    assert message.startswith(f"{other}: does not fit the run's dataset {run_ds}: ")
+    assert (
+        "joint names or order differ" in message
+        and f"{lib.fps / 2:g} fps, the run's is {lib.fps:g}" in message
+    )
+    width = lib.frames.shape[1]
+    assert f"frame layout differs ({width + 1} vs {width} features)" in message
 
 
 def test_evaluate_pareto_and_tune_take_held_out_data(tracking_run: Path, tmp_path: Path, capsys) -> None:

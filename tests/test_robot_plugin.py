@@ -280,6 +280,12 @@ def test_spec_naming_a_joint_the_model_lacks(register_character, capsys: pytest.
     assert code == 2
     assert err.count("\n") == 1 and err.startswith("error: ")
     assert "t1.xml" in err and "names joint(s) the model lacks: Tail" in err
+    # `characters check` reports it as its one failing line (exit 1), unwrapped when piped.
+    code, out, _ = run(capsys, "characters", "check", "t1")
+    assert code == 1 and out.splitlines()[-1] == "t1: fail"
+    (line,) = [ln for ln in out.splitlines() if ln != "t1: fail"]
+    assert line.startswith("fail model: ") and str(spec.mjcf_path) in line
+    assert line.endswith("names joint(s) the model lacks: Tail")
 
 
 def test_model_without_actuators_for_some_joints(
@@ -295,6 +301,11 @@ def test_model_without_actuators_for_some_joints(
     code, _, err = run(capsys, "characters", "show", "t1")
     assert code == 2 and err.count("\n") == 1
     assert "t1_noankle.xml: no actuator drives joint(s) Left_Ankle_Roll, Right_Ankle_Roll" in err
+    code, out, _ = run(capsys, "characters", "check", "t1", "--json")
+    assert code == 1
+    report = json.loads(out)
+    assert report["result"] == "fail" and [c["name"] for c in report["checks"]] == ["model"]
+    assert report["checks"][0]["detail"] == err.removeprefix("error: ").strip()
 
 
 def test_npz_whose_joints_cannot_be_matched(

@@ -125,6 +125,33 @@ def test_sensors_are_read_at_their_own_addresses(model_file: Path) -> None:
     sim.close()
 
 
+def test_jax_mjx_reads_sensors_at_their_own_addresses(model_file: Path) -> None:
+    """The jax-mjx backend looks amorctl's sensors up by name as well: with the file's IMU first,
+    its end-effector readings are the bodies' poses and its PD torques the actuator forces."""
+    pytest.importorskip("mujoco.mjx")
+    jax = pytest.importorskip("jax")
+    jnp = jax.numpy
+    from amorctl.plugins.backends.jax_mjx.physics import MjxPhysics
+
+    phys = MjxPhysics(spec_for(model_file))
+    assert np.asarray(phys.ee_adr)[:, 0].tolist() == [10, 20, 30, 40]
+    assert np.asarray(phys.torque_adr).tolist() == [50, 51]
+    data = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (2, *jnp.shape(x))), phys.template)
+    target = jnp.array([[0.3, -0.2], [0.1, 0.2]], jnp.float32)
+    data, torque, sens, _ = jax.jit(phys.control_step)(
+        data, jnp.zeros((1, 2, 2)), jnp.zeros((), jnp.int32), target
+    )
+    ee = np.asarray(sens)[:, np.asarray(phys.ee_adr)]  # [N, E, 10], as MjxTracking.step reads them
+    ids = [phys.model.body(b).id for b in ("hand", "hand", "foot", "foot")]
+    np.testing.assert_allclose(ee[..., :3], np.asarray(data.xpos)[:, ids], atol=1e-6)
+    np.testing.assert_allclose(ee[..., 3:7], np.asarray(data.xquat)[:, ids], atol=1e-6)
+    actuator_force = np.asarray(data.qfrc_actuator)[:, np.asarray(phys.joint_dof)]
+    np.testing.assert_allclose(np.asarray(torque)[:, -1], actuator_force, rtol=1e-5)
+    assert np.abs(actuator_force).min() > 0.1  # the joints are driven: the comparison means something
+    # What reading from address 0 would have given (the IMU's gyro), not the hand's position:
+    assert np.abs(np.asarray(sens)[:, :3] - ee[:, 0, :3]).max() > 1e-3
+
+
 def test_missing_joint_missing_actuator_and_wrong_actuator_type_are_refused(model_file: Path) -> None:
     spec = spec_for(model_file)
     bad = dataclasses.replace(

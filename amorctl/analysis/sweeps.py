@@ -153,19 +153,10 @@ def pareto_sweep(
         raise AmorError(f"need at least one weight vector, got shape {w.shape}")
     if episodes < 1:
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
-    k, m = w.shape
+    m = w.shape[1]
     groups = list(motions) if motions else []
-    g = max(1, len(groups))
-    all_w = np.vstack([w, np.full((1, m), 1.0 / m)])  # [K+1, m]
-    per_group = (k + 1) * episodes
-    n = g * per_group
-    env_motion = np.repeat(np.arange(g), per_group) if groups else None
-    ids = np.arange(k) if sample_ids is None else np.asarray(sample_ids, dtype=np.int64).reshape(-1)
-    if ids.shape != (k,):
-        raise AmorError(f"sample_ids: need {k} indices, one per weight vector, got {ids.size}")
-    slots = np.concatenate([1 + ids, [0]])  # [K+1]; 0: the equal-weights vector
-    grid = np.meshgrid(np.arange(g), slots, np.arange(episodes), indexing="ij")
-    env_seeds = episode_seeds(seed, np.stack(grid, axis=-1).reshape(n, 3))  # env order, as env_w
+    env_w, env_motion, env_seeds = _env_layout(w, len(groups), episodes, seed, sample_ids)
+    n = len(env_w)
     env, names = make_eval_env(config, n, motions=groups or None, env_motion=env_motion, seed=seed)
     try:
         obj_names = tuple(env.reward_space.names)
@@ -175,7 +166,6 @@ def pareto_sweep(
             raise AmorError(
                 f"--ref-point needs {m} values ({', '.join(obj_names)}), got {len(reference_point)}"
             )
-        env_w = np.tile(np.repeat(all_w, episodes, axis=0), (g, 1))  # [N, m]
         began = time.perf_counter()
         act = fixed_shape_policy(policy)
         result = rollout(act, env, env_w, episodes=1, seed=env_seeds, record_steps=False, on_step=on_step)
@@ -205,6 +195,27 @@ def pareto_sweep(
         seconds=seconds,
         reference_point_rule=rule,
     )
+
+
+def _env_layout(
+    w: np.ndarray, num_motions: int, episodes: int, seed: int, sample_ids: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Which env runs what, in :func:`pareto_sweep`'s env order: each env's weights [N, m] (the K
+    rows of ``w`` and the equal-weights vector, ``episodes`` envs each, for every motion group),
+    its motion group [N] (None without ``num_motions``) and its episode seed [N]."""
+    k, m = w.shape
+    g = max(1, num_motions)
+    all_w = np.vstack([w, np.full((1, m), 1.0 / m)])  # [K+1, m]
+    per_group = (k + 1) * episodes
+    env_motion = np.repeat(np.arange(g), per_group) if num_motions else None
+    ids = np.arange(k) if sample_ids is None else np.asarray(sample_ids, dtype=np.int64).reshape(-1)
+    if ids.shape != (k,):
+        raise AmorError(f"sample_ids: need {k} indices, one per weight vector, got {ids.size}")
+    slots = np.concatenate([1 + ids, [0]])  # [K+1]; 0: the equal-weights vector
+    grid = np.meshgrid(np.arange(g), slots, np.arange(episodes), indexing="ij")
+    env_seeds = episode_seeds(seed, np.stack(grid, axis=-1).reshape(g * per_group, 3))  # as env_w
+    env_w = np.tile(np.repeat(all_w, episodes, axis=0), (g, 1))  # [N, m]
+    return env_w, env_motion, env_seeds
 
 
 def _fronts(

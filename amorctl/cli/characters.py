@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from amorctl.cli.options import JsonFlag
@@ -124,9 +125,10 @@ def check_character_cmd(
     else:
         for c in checks:
             console.print(
-                f"[{_STYLE[c.status]}]{c.status:<4}[/{_STYLE[c.status]}] {c.name}: {c.detail}",
+                f"[{_STYLE[c.status]}]{c.status:<4}[/{_STYLE[c.status]}] {c.name}: {escape(c.detail)}",
                 highlight=False,
+                soft_wrap=True,  # one line per check, also when piped (grep, CI logs)
             )
-        console.print(f"{name}: {result}", highlight=False)
+        console.print(f"{name}: {result}", highlight=False, soft_wrap=True)
     if result == "fail":
         raise typer.Exit(1)

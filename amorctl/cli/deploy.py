@@ -11,7 +11,7 @@ import os
 import signal
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
@@ -20,6 +20,9 @@ from rich.table import Table
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
+
+if TYPE_CHECKING:  # annotations only: the commands import the runtime when they run
+    from amorctl.deploy.runtime import EpisodeResult, Runtime
 
 app = typer.Typer(
     help="Deploy a policy: ONNX bundle with the weights as an input, sim2sim runtime, robustness check.",
@@ -175,6 +178,27 @@ def run_cmd(
         live = UdpWeights(bundle.objectives, source, *address, stale_timeout=stale_timeout)
         err_console.print(f"listening for weights on udp://{live.address[0]}:{live.address[1]}")
         source = live
+    try:
+        result, interrupted = _run_until_interrupt(
+            runtime, source, out, motion=motion, seconds=seconds, seed=seed, stop_on_fall=stop_on_fall
+        )
+    finally:
+        if live is not None:
+            live.close()
+    info = result.to_dict()
+    info["interrupted"] = interrupted
+    info["log"] = str(out) if out is not None else None
+    if json_:
+        print_json(info)
+        return
+    _print_run(bundle_dir, info, out)
+
+
+def _run_until_interrupt(
+    runtime: Runtime, source: Any, out: Path | None, *, seed: int, **run_args: Any
+) -> tuple[EpisodeResult, bool]:
+    """``runtime.run(source, seed=seed, **run_args)``, logged to ``out`` (MCAP) when given; Ctrl-C
+    ends the run after the current step. Returns the run's result and whether Ctrl-C ended it."""
     stop = {"flag": False}
 
     def _interrupt(signum: int, frame: Any) -> None:
@@ -187,21 +211,17 @@ def run_cmd(
 
             with McapLogger(out, runtime, {"seed": str(seed)}) as log:
                 runtime.logger = log
-                result = runtime.run(source, motion=motion, seconds=seconds, seed=seed,
-                                     stop_on_fall=stop_on_fall, should_stop=lambda: stop["flag"])  # fmt: skip
+                result = runtime.run(source, seed=seed, should_stop=lambda: stop["flag"], **run_args)
         else:
-            result = runtime.run(source, motion=motion, seconds=seconds, seed=seed,
-                                 stop_on_fall=stop_on_fall, should_stop=lambda: stop["flag"])  # fmt: skip
+            result = runtime.run(source, seed=seed, should_stop=lambda: stop["flag"], **run_args)
     finally:
         signal.signal(signal.SIGINT, previous)
-        if live is not None:
-            live.close()
-    info = result.to_dict()
-    info["interrupted"] = stop["flag"]
-    info["log"] = str(out) if out is not None else None
-    if json_:
-        print_json(info)
-        return
+    return result, stop["flag"]
+
+
+def _print_run(bundle_dir: Path, info: dict[str, Any], out: Path | None) -> None:
+    """The human-readable report of ``deploy run``: length, fall, tracking error, timing, returns,
+    live input, events and the log written."""
     head = f"{bundle_dir}  motion={info['motion']}  {info['steps']} steps ({info['seconds']:.2f} s)"
     if info["fell_at"] is not None:
         head += f"  fell at {info['fell_at']:.2f} s"

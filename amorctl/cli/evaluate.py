@@ -197,14 +197,7 @@ def evaluate(
     if quiet:
         return
 
-    results: list[EvalResult] = []
-    for label, source in settings:
-        with rollout_progress(show, f"evaluate {label}") as on_step:
-            result = evaluate_setting(
-                policy, config, source, label=label, motions=motion, episodes=episodes, seed=seed,
-                on_step=on_step,
-            )  # fmt: skip
-        results.append(result)
+    results = _evaluate_settings(policy, config, settings, motion, episodes, seed, show)
     video_doc = None
     if video is not None:
         video_doc = _video(video, policy, config, settings[-1][1], motion, video_seconds, seed)
@@ -226,6 +219,23 @@ def evaluate(
         print_json(doc)
         return
     _print_report(doc, results, names)
+
+
+def _evaluate_settings(
+    policy: Any, config: Any, settings: list[tuple[str, WeightsSource]], motions: list[str] | None,
+    episodes: int, seed: int, show: bool,
+) -> list[EvalResult]:  # fmt: skip
+    """One :class:`EvalResult` per ``(label, weight source)`` of ``settings``, in order, each with a
+    progress bar when ``show``."""
+    results: list[EvalResult] = []
+    for label, source in settings:
+        with rollout_progress(show, f"evaluate {label}") as on_step:
+            result = evaluate_setting(
+                policy, config, source, label=label, motions=motions, episodes=episodes, seed=seed,
+                on_step=on_step,
+            )  # fmt: skip
+        results.append(result)
+    return results
 
 
 def _sweep(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -11,6 +11,7 @@ from rich.table import Table
 
 from amorctl.cli.options import CharacterOpt, JsonFlag
 from amorctl.cli.output import console, err_console, print_json
+from amorctl.motion.preprocess import PreprocessReport
 from amorctl.motion.preprocess import Progress as Hooks
 from amorctl.motion.preprocess import preprocess as run_preprocess
 from amorctl.motion.vae import VaeConfig
@@ -61,36 +62,17 @@ def preprocess(
         if vae
         else None
     )
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("{task.fields[info]}"),
-        console=err_console,
-        transient=True,
-        disable=json_out or not err_console.is_terminal,
-    ) as bar:
-        clips_task = bar.add_task("clips", total=None, info="")
-        vae_task = bar.add_task("VAE", total=None, info="", visible=False)
-
-        def on_clip(i: int, n: int, name: str) -> None:
-            bar.update(clips_task, completed=i, total=n, info=name)
-
-        def on_step(step: int, total: int, loss: float) -> None:
-            bar.update(vae_task, completed=step, total=total, visible=True, info=f"loss {loss:.4f}")
-
-        report = run_preprocess(
-            list(files or []),
-            character=character,
-            out=out,
-            builtin=builtin,
-            fmt=fmt,
-            joint_map=joint_map,
-            licence=licence,
-            vae=cfg,
-            progress=Hooks(clip=on_clip, vae_step=on_step),
-        )
+    report = _run_with_progress(
+        list(files or []),
+        quiet=json_out,
+        character=character,
+        out=out,
+        builtin=builtin,
+        fmt=fmt,
+        joint_map=joint_map,
+        licence=licence,
+        vae=cfg,
+    )
     if json_out:
         print_json(
             {
@@ -104,6 +86,36 @@ def preprocess(
             }
         )
         return
+    _print_report(report)
+
+
+def _run_with_progress(files: list[Path], *, quiet: bool, **kwargs: Any) -> PreprocessReport:
+    """``motion.preprocess.preprocess(files, **kwargs)`` with progress bars for the clips and the VAE
+    on stderr (none with ``quiet`` or when stderr is not a terminal)."""
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[info]}"),
+        console=err_console,
+        transient=True,
+        disable=quiet or not err_console.is_terminal,
+    ) as bar:
+        clips_task = bar.add_task("clips", total=None, info="")
+        vae_task = bar.add_task("VAE", total=None, info="", visible=False)
+
+        def on_clip(i: int, n: int, name: str) -> None:
+            bar.update(clips_task, completed=i, total=n, info=name)
+
+        def on_step(step: int, total: int, loss: float) -> None:
+            bar.update(vae_task, completed=step, total=total, visible=True, info=f"loss {loss:.4f}")
+
+        return run_preprocess(files, progress=Hooks(clip=on_clip, vae_step=on_step), **kwargs)
+
+
+def _print_report(report: PreprocessReport) -> None:
+    """The human-readable report: a table of clips, contact reports of robot clips, the VAE, timings."""
     table = Table(title=f"{report.out} ({report.character}, {report.fps:g} Hz)")
     table.add_column("clip", no_wrap=True)
     for col in ("frames", "seconds", "source fps", "retarget err (m)", "floor lift (m)"):

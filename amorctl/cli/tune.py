@@ -106,33 +106,10 @@ def tune(
     from amorctl.tune.session import PinnedMotion, run_tune
 
     if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
-        from amorctl.cli.hlp import print_hlp_weights, tune_with_hlp
-
-        if data is not None:
-            raise AmorError("--hlp runs on the run's own dataset (the HLP was trained on it); drop --data")
-        given = [out, plot, video]
-        _check_outputs(given)
-        if video is not None and video.suffix.lower() != ".mp4":
-            raise AmorError(f"--video {video}: the file must end in .mp4")
-        ran = tune_with_hlp(
-            run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
-            save_to, any(p is not None for p in given),
+        _tune_with_hlp(
+            run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, data, live, host, port,
+            save_to, out, plot, video, json_,
         )  # fmt: skip
-        if ran is None:  # the live page was served
-            return
-        rollout, character, extra = ran
-        _write_outputs(
-            rollout, {"run": str(run), "seed": str(seed), "hlp": str(hlp)}, out, plot, video, character
-        )
-        result = {
-            **_result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video}),
-            "hlp": extra,
-        }
-        if json_:
-            print_json(result)
-            return
-        _print_table(result)
-        print_hlp_weights(extra)
         return
     if scale is not None:
         raise AmorError("--scale edits the weights an HLP chose; it needs --hlp")
@@ -165,6 +142,42 @@ def tune(
         print_json(result)
         return
     _print_table(result)
+
+
+def _tune_with_hlp(
+    run: Path, hlp: Path, motion: str | None, scale: str | None, seconds: float | None,
+    weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int, data: Path | None,
+    live: bool, host: str, port: int, save_to: Path, out: Path | None, plot: Path | None,
+    video: Path | None, json_: bool,
+) -> None:  # fmt: skip
+    """``tune --hlp``: the HLP of ``hlp`` chooses w_t every step (``amorctl.hlp.tune``); the same
+    outputs and report as with fixed weights, plus the weights it chose."""
+    from amorctl.cli.hlp import print_hlp_weights, tune_with_hlp
+
+    if data is not None:
+        raise AmorError("--hlp runs on the run's own dataset (the HLP was trained on it); drop --data")
+    given = [out, plot, video]
+    _check_outputs(given)
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise AmorError(f"--video {video}: the file must end in .mp4")
+    ran = tune_with_hlp(
+        run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
+        save_to, any(p is not None for p in given),
+    )  # fmt: skip
+    if ran is None:  # the live page was served
+        return
+    rollout, character, extra = ran
+    meta = {"run": str(run), "seed": str(seed), "hlp": str(hlp)}
+    _write_outputs(rollout, meta, out, plot, video, character)
+    result = {
+        **_result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video}),
+        "hlp": extra,
+    }
+    if json_:
+        print_json(result)
+        return
+    _print_table(result)
+    print_hlp_weights(extra)
 
 
 def _check_args(

@@ -42,31 +42,14 @@ def synthetic_library(
     d = mujoco.MjData(m)
     fps = float(character.control_hz)
     nf = round(seconds * fps) + 1
-    jn = character.num_joints
-    lo = np.array([j.range[0] for j in character.joints])
-    hi = np.array([j.range[1] for j in character.joints])
-    stand = np.array([character.standing_pose.get(j.name, 0.0) for j in character.joints])
     q0 = m.qpos0[sim.root_qpos + 3 : sim.root_qpos + 7]
     body_ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in character.end_effectors]
 
     arrays: dict[str, list[np.ndarray]] = {k: [] for k in ("rp", "rq", "q", "ep", "eq")}
     clips = []
     for k in range(num_clips):
-        t = np.arange(nf) / fps
-        freq = rng.uniform(0.4, 1.0)
-        phase = rng.uniform(0, 2 * np.pi, size=jn)
-        q = np.clip(stand + amplitude * np.sin(2 * np.pi * freq * t[:, None] + phase), lo, hi)
-        yaw = rng.uniform(-np.pi, np.pi)
-        rq = np.tile(quat_mul(yaw_quat(np.array(yaw)), q0), (nf, 1))
-        rp = np.tile([rng.uniform(-1, 1), rng.uniform(-1, 1), character.standing_height], (nf, 1))
-        ep, eq = np.empty((nf, len(body_ids), 3)), np.empty((nf, len(body_ids), 4))
-        for i in range(nf):  # setup only, not a hot path
-            d.qpos[:] = m.qpos0
-            d.qpos[sim.root_qpos : sim.root_qpos + 3] = rp[i]
-            d.qpos[sim.root_qpos + 3 : sim.root_qpos + 7] = rq[i]
-            d.qpos[sim.joint_qpos] = q[i]
-            mujoco.mj_kinematics(m, d)
-            ep[i], eq[i] = d.xpos[body_ids], d.xquat[body_ids]
+        rp, rq, q = _sway(rng, character, np.arange(nf) / fps, amplitude, q0)
+        ep, eq = _body_poses(m, d, sim.root_qpos, sim.joint_qpos, body_ids, rp, rq, q)
         for key, val in zip(("rp", "rq", "q", "ep", "eq"), (rp, rq, q, ep, eq), strict=True):
             arrays[key].append(val)
         clips.append(
@@ -113,3 +96,39 @@ def synthetic_library(
         z=np.stack([np.sin(phase), np.cos(phase)], axis=-1).astype(np.float32),
         metadata={"synthetic": True},
     )
+
+
+def _sway(
+    rng: np.random.Generator, character: CharacterSpec, t: np.ndarray, amplitude: float, q0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One clip at times ``t`` [T]: root positions [T, 3] (standing height, a random spot), root
+    quaternions [T, 4] (the model's ``q0`` turned to a random heading) and joint angles [T, J] (the
+    standing pose plus a sinusoid of random frequency and phases, clipped to the joint ranges)."""
+    lo = np.array([j.range[0] for j in character.joints])
+    hi = np.array([j.range[1] for j in character.joints])
+    stand = np.array([character.standing_pose.get(j.name, 0.0) for j in character.joints])
+    freq = rng.uniform(0.4, 1.0)
+    phase = rng.uniform(0, 2 * np.pi, size=character.num_joints)
+    q = np.clip(stand + amplitude * np.sin(2 * np.pi * freq * t[:, None] + phase), lo, hi)
+    yaw = rng.uniform(-np.pi, np.pi)
+    rq = np.tile(quat_mul(yaw_quat(np.array(yaw)), q0), (len(t), 1))
+    rp = np.tile([rng.uniform(-1, 1), rng.uniform(-1, 1), character.standing_height], (len(t), 1))
+    return rp, rq, q
+
+
+def _body_poses(
+    m: mujoco.MjModel, d: mujoco.MjData, root_qpos: int, joint_qpos: np.ndarray, body_ids: list[int],
+    rp: np.ndarray, rq: np.ndarray, q: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """World positions [T, B, 3] and quaternions [T, B, 4] of ``body_ids`` at every frame, by
+    forward kinematics of root positions ``rp`` [T, 3], root quaternions ``rq`` [T, 4] and joint
+    angles ``q`` [T, J] (setup only, not a hot path)."""
+    ep, eq = np.empty((len(q), len(body_ids), 3)), np.empty((len(q), len(body_ids), 4))
+    for i in range(len(q)):
+        d.qpos[:] = m.qpos0
+        d.qpos[root_qpos : root_qpos + 3] = rp[i]
+        d.qpos[root_qpos + 3 : root_qpos + 7] = rq[i]
+        d.qpos[joint_qpos] = q[i]
+        mujoco.mj_kinematics(m, d)
+        ep[i], eq[i] = d.xpos[body_ids], d.xquat[body_ids]
+    return ep, eq

@@ -18,6 +18,7 @@ Protocol (paper Section 7.3, CPU-sized by default):
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -178,17 +179,62 @@ def hlp_table(
         opts: sizes.
         progress: called with a line per phase.
     """
-    from amorctl.hlp.run import LoadedHlp
-
     opts.check()
-    for _, _, source in conditions:  # an HLP of another run is refused before any rollout
-        if isinstance(source, LoadedHlp):
-            source.dir.check_run(RunDir.open(run_path))
     say = progress or (lambda _: None)
     torch_threads = torch.get_num_threads()
-    cfg = HlpConfig()
-    import dataclasses
+    rolled = _roll_conditions(run_path, conditions, opts, say)
+    data, dataset = rolled.data, rolled.dataset
+    n_train_envs = max(1, round(opts.num_envs * opts.train_fraction))
+    rng = np.random.default_rng(opts.seed + 7)
+    held_rows = rng.permutation(len(dataset))
+    n_held_ds = max(1, len(dataset) // 4)
+    ds_held, ds_train = held_rows[:n_held_ds], held_rows[n_held_ds:]
+    neg_w = np.concatenate([d.windows[d.env_of < n_train_envs] for d in data])
+    neg_z = np.concatenate([d.z[d.env_of < n_train_envs] for d in data])
+    say(f"training the evaluation discriminator ({opts.steps} steps, {len(neg_w)} policy windows)")
+    learner = _train_discriminator(dataset, ds_train, neg_w, neg_z, opts, rng)
+    torch.set_num_threads(torch_threads)
+    ds_logit = float(learner.logits(dataset.windows_at(ds_held), dataset.z[dataset.ends[ds_held] + 1]).mean())
+    rows_out = [_row(d, learner, n_train_envs) for d in data]
+    counts = {
+        "episodes_per_condition": opts.num_envs,
+        "train_windows_policy": len(neg_w),
+        "train_windows_dataset_pool": len(ds_train),
+        "dataset_windows_seen": int(opts.steps * opts.batch_size),
+        "heldout_windows_policy": int(sum(r["windows_heldout"] for r in rows_out)),
+        "heldout_windows_dataset": len(ds_held),
+    }
+    caption = (
+        f"Table 2 (CPU-sized): {opts.num_envs} episodes x {opts.seconds:g} s per row "
+        f"(MAE CI over episodes); evaluation D: fresh, V = {opts.window}, trained {opts.steps} steps on "
+        f"{counts['train_windows_policy']} policy windows (all rows' training envs pooled) vs dataset "
+        f"windows; logits on {counts['heldout_windows_policy']} held-out policy windows "
+        f"(CI over {opts.num_envs - n_train_envs} held-out episodes per row); "
+        f"{counts['heldout_windows_dataset']} held-out dataset windows score {ds_logit:.2f}."
+    )
+    return Table2(rolled.objectives, rows_out, ds_logit, counts, opts, caption)
 
+
+@dataclass(frozen=True)
+class _Rolled:
+    """Step 1 of the protocol: every condition's rollout and the run's dataset windows."""
+
+    objectives: tuple[str, ...]
+    data: list[ConditionData]
+    dataset: DatasetWindows
+
+
+def _roll_conditions(
+    run_path: str, conditions: list[tuple[str, str, Any]], opts: TableOptions, say: Callable[[str], None]
+) -> _Rolled:
+    """Roll every condition out on the run's env (one env, the same seed for all); an HLP of another
+    run, or a run without motion tracking, is refused before any rollout."""
+    from amorctl.hlp.run import LoadedHlp
+
+    for _, _, source in conditions:
+        if isinstance(source, LoadedHlp):
+            source.dir.check_run(RunDir.open(run_path))
+    cfg = HlpConfig()
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, motions=tuple(opts.motions)))
     s = setup(run_path, cfg, num_envs=opts.num_envs, seed=opts.seed, episode_seconds=opts.seconds + 1.0)
     try:
@@ -215,20 +261,20 @@ def hlp_table(
         close = getattr(s.env, "close", None)
         if callable(close):
             close()
-    n_train_envs = max(1, round(opts.num_envs * opts.train_fraction))
-    rng = np.random.default_rng(opts.seed + 7)
-    dataset = DatasetWindows(library, spec, clips)
-    held_rows = rng.permutation(len(dataset))
-    n_held_ds = max(1, len(dataset) // 4)
-    ds_held, ds_train = held_rows[:n_held_ds], held_rows[n_held_ds:]
-    neg_w = np.concatenate([d.windows[d.env_of < n_train_envs] for d in data])
-    neg_z = np.concatenate([d.z[d.env_of < n_train_envs] for d in data])
+    return _Rolled(tuple(s.meta["objectives"]), data, DatasetWindows(library, spec, clips))
+
+
+def _train_discriminator(
+    dataset: DatasetWindows, ds_train: np.ndarray, neg_w: np.ndarray, neg_z: np.ndarray,
+    opts: TableOptions, rng: np.random.Generator,
+) -> DiscriminatorLearner:  # fmt: skip
+    """Step 2: a fresh discriminator, trained on the dataset windows of rows ``ds_train`` against
+    the policy windows ``neg_w`` [K, W] with their z ``neg_z`` [K, L] (and mismatched-z negatives)."""
     dcfg = DiscriminatorConfig()
     learner = DiscriminatorLearner(
-        spec.size, library.latent_dim, opts.hidden, dcfg.z_hidden, dcfg.grad_penalty, dcfg.logit_l2,
-        dcfg.weight_decay, opts.learning_rate, opts.seed + 11,
+        dataset.spec.size, dataset.z.shape[1], opts.hidden, dcfg.z_hidden, dcfg.grad_penalty,
+        dcfg.logit_l2, dcfg.weight_decay, opts.learning_rate, opts.seed + 11,
     )  # fmt: skip
-    say(f"training the evaluation discriminator ({opts.steps} steps, {len(neg_w)} policy windows)")
     b = opts.batch_size
     n_mis = b // 4
     for _ in range(opts.steps):
@@ -237,44 +283,24 @@ def hlp_table(
         pick = rng.integers(len(neg_w), size=b - n_mis)
         mw, mz = dataset.mismatched(rng, n_mis)
         learner.step(pos, (np.concatenate([neg_w[pick], mw]), np.concatenate([neg_z[pick], mz])))
-    torch.set_num_threads(torch_threads)
-    ds_logit = float(learner.logits(dataset.windows_at(ds_held), dataset.z[dataset.ends[ds_held] + 1]).mean())
-    rows_out = []
-    held_counts = []
-    for d in data:
-        held = d.env_of >= n_train_envs
-        logits = learner.logits(d.windows[held], d.z[held])
-        per_env = np.array([logits[d.env_of[held] == e].mean() for e in np.unique(d.env_of[held])])
-        held_counts.append(int(held.sum()))
-        rows_out.append(
-            {
-                "label": d.label,
-                "weights": d.weights,
-                "joint_mae_deg": float(d.mae_per_env.mean()),
-                "joint_mae_ci95": _ci95(d.mae_per_env),
-                "logit": float(logits.mean()),
-                "logit_ci95": _ci95(per_env),
-                "episodes": len(d.mae_per_env),
-                "falls": d.falls,
-                "windows_train": int((~held).sum()),
-                "windows_heldout": int(held.sum()),
-                "mean_w": [float(x) for x in d.mean_w],
-            }
-        )
-    counts = {
-        "episodes_per_condition": opts.num_envs,
-        "train_windows_policy": len(neg_w),
-        "train_windows_dataset_pool": len(ds_train),
-        "dataset_windows_seen": int(opts.steps * b),
-        "heldout_windows_policy": int(sum(held_counts)),
-        "heldout_windows_dataset": len(ds_held),
+    return learner
+
+
+def _row(d: ConditionData, learner: DiscriminatorLearner, n_train_envs: int) -> dict[str, Any]:
+    """Step 3: one condition's row of the table, its logits on its held-out envs' windows."""
+    held = d.env_of >= n_train_envs
+    logits = learner.logits(d.windows[held], d.z[held])
+    per_env = np.array([logits[d.env_of[held] == e].mean() for e in np.unique(d.env_of[held])])
+    return {
+        "label": d.label,
+        "weights": d.weights,
+        "joint_mae_deg": float(d.mae_per_env.mean()),
+        "joint_mae_ci95": _ci95(d.mae_per_env),
+        "logit": float(logits.mean()),
+        "logit_ci95": _ci95(per_env),
+        "episodes": len(d.mae_per_env),
+        "falls": d.falls,
+        "windows_train": int((~held).sum()),
+        "windows_heldout": int(held.sum()),
+        "mean_w": [float(x) for x in d.mean_w],
     }
-    caption = (
-        f"Table 2 (CPU-sized): {opts.num_envs} episodes x {opts.seconds:g} s per row "
-        f"(MAE CI over episodes); evaluation D: fresh, V = {opts.window}, trained {opts.steps} steps on "
-        f"{counts['train_windows_policy']} policy windows (all rows' training envs pooled) vs dataset "
-        f"windows; logits on {counts['heldout_windows_policy']} held-out policy windows "
-        f"(CI over {opts.num_envs - n_train_envs} held-out episodes per row); "
-        f"{counts['heldout_windows_dataset']} held-out dataset windows score {ds_logit:.2f}."
-    )
-    return Table2(tuple(s.meta["objectives"]), rows_out, ds_logit, counts, opts, caption)

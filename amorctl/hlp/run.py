@@ -320,17 +320,7 @@ def train_hlp(
             holds none (with it), or belongs to a run of another character / objective set /
             observation layout; an unknown motion. Nothing is written then.
     """
-    hd = HlpDir(out)
-    ckpt = None
-    llp_copy = None
-    if resume:
-        hd = HlpDir.open(out)
-        hd.check_run(RunDir.open(run_path))
-        config = _resume_config(hd, config)
-        ckpt = hd.checkpoint()
-        llp_copy = hd.llp_checkpoint_path()
-    elif hd.exists():
-        raise AmorError(f"{out} already holds an HLP; pass --resume to continue it or choose another --out")
+    hd, config, ckpt, llp_copy = _open_out(run_path, out, config, resume)
     if config.run.threads > 0:
         torch.set_num_threads(config.run.threads)
     s = setup(run_path, config, llp_checkpoint=llp_copy)
@@ -340,17 +330,7 @@ def train_hlp(
     trainer = HlpTrainer(s.env, s.llp, config, reward)
     before = policy_fingerprint(s.llp)
     start = 0
-    meta = {
-        "format": FORMAT,
-        **s.meta,
-        "run": str(s.run.path.resolve()),
-        "llp_iteration": s.llp_checkpoint.iteration,
-        "llp_sha256": _sha256(checkpoint_paths(s.llp_checkpoint.path.parent, s.llp_checkpoint.iteration)[0]),
-        "window": config.discriminator.window,
-        "reward": config.discriminator.reward,
-        "motions": list(config.env.motions),
-        "llp_fingerprint": before,
-    }
+    meta = _hlp_meta(s, config, before)
     if ckpt is not None:
         trainer.load_state_dict(ckpt.trainer)
         if ckpt.env is not None:
@@ -380,33 +360,11 @@ def train_hlp(
     log = MetricsLog(hd.path, config.run.tensorboard, start if resume else None)
     if on_start is not None:
         on_start(s, start, total)
-    last_path = ckpt.path if ckpt is not None else None
-    last: dict[str, float] = {}
-    interrupted = False
-    iteration = start
-    began = time.perf_counter()
     try:
-        with stop_on_signals() as stop:
-            while iteration < total:
-                last = trainer.iteration()
-                iteration = trainer.iteration_count
-                last["wall_time_s"] = time.perf_counter() - began
-                log.write(last)
-                if on_iteration is not None:
-                    on_iteration(last, total, time.perf_counter() - began)
-                if not all(np.isfinite(v) for k, v in last.items() if k.startswith("loss/")):
-                    raise AmorError(
-                        f"HLP training diverged at iteration {iteration}; last good checkpoint {last_path}"
-                    )
-                interrupted = (
-                    stop.requested
-                    or (stop_after is not None and iteration - start >= stop_after)
-                    or (stop_when is not None and stop_when(last))
-                )
-                if interrupted or iteration % config.run.checkpoint_every == 0 or iteration == total:
-                    last_path = checkpoint(iteration)
-                if interrupted:
-                    break
+        iteration, last, interrupted, last_path = _iterate(
+            trainer, log, checkpoint, start, total, config.run.checkpoint_every,
+            ckpt.path if ckpt is not None else None, on_iteration, stop_after, stop_when,
+        )  # fmt: skip
     finally:
         log.close()
         close = getattr(s.env, "close", None)
@@ -416,6 +374,87 @@ def train_hlp(
     if after != before:  # the LLP must stay frozen; this would be a bug, not a user error
         raise RuntimeError("the frozen low-level policy's parameters changed during HLP training")
     return HlpResult(hd.path, start, iteration, interrupted, last_path, before, after, last)
+
+
+def _open_out(
+    run_path: str | Path, out: str | Path, config: HlpConfig, resume: bool
+) -> tuple[HlpDir, HlpConfig, Checkpoint | None, Path | None]:
+    """The HLP directory ``out``, the config to train with, and with ``resume`` its newest
+    checkpoint and its copy of the AMOR checkpoint; AmorError for an HLP that is there without
+    ``resume``, or missing or of another run with it."""
+    hd = HlpDir(out)
+    if not resume:
+        if hd.exists():
+            raise AmorError(
+                f"{out} already holds an HLP; pass --resume to continue it or choose another --out"
+            )
+        return hd, config, None, None
+    hd = HlpDir.open(out)
+    hd.check_run(RunDir.open(run_path))
+    return hd, _resume_config(hd, config), hd.checkpoint(), hd.llp_checkpoint_path()
+
+
+def _hlp_meta(s: HlpSetup, config: HlpConfig, llp_fingerprint: str) -> dict[str, Any]:
+    """``hlp.json``: the run's metadata, the AMOR checkpoint the HLP sits on (iteration, hash of
+    its tensors, fingerprint of the frozen policy), window, reward and motions."""
+    llp = s.llp_checkpoint
+    return {
+        "format": FORMAT,
+        **s.meta,
+        "run": str(s.run.path.resolve()),
+        "llp_iteration": llp.iteration,
+        "llp_sha256": _sha256(checkpoint_paths(llp.path.parent, llp.iteration)[0]),
+        "window": config.discriminator.window,
+        "reward": config.discriminator.reward,
+        "motions": list(config.env.motions),
+        "llp_fingerprint": llp_fingerprint,
+    }
+
+
+def _iterate(
+    trainer: HlpTrainer,
+    log: MetricsLog,
+    checkpoint: Callable[[int], Path],
+    start: int,
+    total: int,
+    checkpoint_every: int,
+    last_path: Path | None,
+    on_iteration: Callable[[dict[str, float], int, float], None] | None,
+    stop_after: int | None,
+    stop_when: Callable[[dict[str, float]], bool] | None,
+) -> tuple[int, dict[str, float], bool, Path | None]:
+    """HLP iterations from ``start`` up to ``total``, or until a signal, ``stop_after`` iterations
+    or ``stop_when``: each logged, a checkpoint every ``checkpoint_every``, at the end and at a stop.
+
+    Returns:
+        (last iteration, its metrics, whether it stopped early, the newest checkpoint).
+    """
+    last: dict[str, float] = {}
+    interrupted = False
+    iteration = start
+    began = time.perf_counter()
+    with stop_on_signals() as stop:
+        while iteration < total:
+            last = trainer.iteration()
+            iteration = trainer.iteration_count
+            last["wall_time_s"] = time.perf_counter() - began
+            log.write(last)
+            if on_iteration is not None:
+                on_iteration(last, total, time.perf_counter() - began)
+            if not all(np.isfinite(v) for k, v in last.items() if k.startswith("loss/")):
+                raise AmorError(
+                    f"HLP training diverged at iteration {iteration}; last good checkpoint {last_path}"
+                )
+            interrupted = (
+                stop.requested
+                or (stop_after is not None and iteration - start >= stop_after)
+                or (stop_when is not None and stop_when(last))
+            )
+            if interrupted or iteration % checkpoint_every == 0 or iteration == total:
+                last_path = checkpoint(iteration)
+            if interrupted:
+                break
+    return iteration, last, interrupted, last_path
 
 
 def _resume_config(hd: HlpDir, requested: HlpConfig) -> HlpConfig:

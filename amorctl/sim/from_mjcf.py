@@ -259,6 +259,50 @@ def character_from_mjcf(
     """
     path = resolve_model_source(path, name)
     info = read_mjcf(path, keyframe, cache=cache)
+    joints = _joint_specs(path, name, info, groups, gains, torque_limits)
+    root = info["root_body"]
+    full_keypoints = _keypoints(path, name, info, end_effectors, keypoints)
+    rate = physics_hz or max(1, round(1.0 / info["timestep"]))
+    if rate % control_hz:
+        raise AmorError(
+            f"{path}: physics rate {rate} Hz is not a multiple of control_hz {control_hz} "
+            "(pass physics_hz=...)"
+        )
+    height = float(info["standing_height"])
+    actuated = {j.name for j in joints}
+    return CharacterSpec(
+        name=name,
+        description=description
+        or f"{path.stem} ({info['mass']:.1f} kg): free root + {len(joints)} actuated hinges",
+        mjcf_path=path,
+        root_body=root,
+        joints=tuple(joints),
+        end_effectors=tuple(end_effectors),
+        actuator=ActuatorModel(kind=kind),
+        standing_height=round(height, 6),
+        min_standing_height=round(min_standing_fraction * height, 4),
+        keypoints=full_keypoints,
+        scale_profile=scale_profile,
+        objective_scales=dict(objective_scales or {}),
+        standing_pose={k: v for k, v in info["standing_pose"].items() if k in actuated},
+        physics_hz=int(rate),
+        control_hz=int(control_hz),
+        licence=licence,
+        add_floor=add_floor,
+    )
+
+
+def _joint_specs(
+    path: Path,
+    name: str,
+    info: dict[str, Any],
+    groups: Mapping[str, JointGroup],
+    gains: Mapping[str, tuple[float, float]] | None,
+    torque_limits: Mapping[str, float] | None,
+) -> list[JointSpec]:
+    """The actuated joints of :func:`read_mjcf`'s ``info``, each with its group, gains and torque
+    limit (the arguments first, then the model's); one AmorError listing every joint without a
+    group, gains or torque limit."""
     joints: list[JointSpec] = []
     ungrouped, no_gain, no_limit = [], [], []
     for row in info["joints"]:
@@ -301,6 +345,18 @@ def character_from_mjcf(
         problems.append(f"no torque limit for joint(s) {', '.join(no_limit)} (pass torque_limits=...)")
     if problems:
         raise AmorError(f"{path}: character {name!r}: {'; '.join(problems)}")
+    return joints
+
+
+def _keypoints(
+    path: Path,
+    name: str,
+    info: dict[str, Any],
+    end_effectors: tuple[str, str, str, str],
+    keypoints: Mapping[str, str],
+) -> dict[str, str]:
+    """Every key point's body: the root, hands and feet by default, then ``keypoints`` (which
+    must name a ``head``); AmorError for a body the model lacks."""
     root = info["root_body"]
     full_keypoints = {
         "root": root,
@@ -317,34 +373,7 @@ def character_from_mjcf(
         raise AmorError(
             f"{path}: character {name!r}: no body named {', '.join(map(repr, unknown))} in the model"
         )
-    rate = physics_hz or max(1, round(1.0 / info["timestep"]))
-    if rate % control_hz:
-        raise AmorError(
-            f"{path}: physics rate {rate} Hz is not a multiple of control_hz {control_hz} "
-            "(pass physics_hz=...)"
-        )
-    height = float(info["standing_height"])
-    actuated = {j.name for j in joints}
-    return CharacterSpec(
-        name=name,
-        description=description
-        or f"{path.stem} ({info['mass']:.1f} kg): free root + {len(joints)} actuated hinges",
-        mjcf_path=path,
-        root_body=root,
-        joints=tuple(joints),
-        end_effectors=tuple(end_effectors),
-        actuator=ActuatorModel(kind=kind),
-        standing_height=round(height, 6),
-        min_standing_height=round(min_standing_fraction * height, 4),
-        keypoints=full_keypoints,
-        scale_profile=scale_profile,
-        objective_scales=dict(objective_scales or {}),
-        standing_pose={k: v for k, v in info["standing_pose"].items() if k in actuated},
-        physics_hz=int(rate),
-        control_hz=int(control_hz),
-        licence=licence,
-        add_floor=add_floor,
-    )
+    return full_keypoints
 
 
 set_mjcf_reader(character_from_mjcf)  # CharacterSpec.from_mjcf calls it (core/ cannot import MuJoCo)

@@ -163,7 +163,8 @@ def _tiny_config(character: str, dataset: Path, backend: str) -> TrainConfig:
             "env": {"kind": "tracking", "character": character, "dataset": str(dataset),
                     "num_envs": 4, "episode_seconds": 0.4},
             "network": {"actor_hidden": [16], "critic_hidden": [16]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+            # fp32: the parity check below compares the loaded (always fp32) policy with the trainer
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "precision": "fp32"},
         },
         "amorctl.testing",
     )  # fmt: skip

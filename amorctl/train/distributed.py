@@ -257,10 +257,14 @@ def session(device: str = "cpu") -> Iterator[World]:
             f"rank {rank}/{size}: could not join the process group at "
             f"{os.environ['MASTER_ADDR']}:{os.environ['MASTER_PORT']}: {exc}"
         ) from None
+    clean = False
     try:
         yield current()
+        clean = True
     finally:
         with contextlib.suppress(RuntimeError, ValueError):
+            if clean:  # both ranks past their last collective before gloo's threads are torn down
+                dist.barrier()  # (a rank that left early made gloo abort the other at exit)
             dist.destroy_process_group()
 
 

@@ -421,6 +421,7 @@ def serve_live(
     app_class: type[LiveApp] = LiveApp,
 ) -> None:
     """Serve ``session`` on a live page (an ``app_class``, e.g. the HLP's) until interrupted (Ctrl-C)."""
+    before = set(threading.enumerate())
     try:
         app = app_class(session, host=host, port=port)
     except OSError as exc:
@@ -428,5 +429,21 @@ def serve_live(
     if announce is not None:
         announce(app.url)
     app.start()
-    with contextlib.suppress(KeyboardInterrupt):
-        app.wait()
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            app.wait()
+    finally:
+        _join_threads(set(threading.enumerate()) - before, timeout_s=SHUTDOWN_TIMEOUT_S)
+
+
+SHUTDOWN_TIMEOUT_S = 15.0
+
+
+def _join_threads(threads: set[threading.Thread], timeout_s: float) -> None:
+    """Wait (bounded) for the page's threads to end. The server's threads are daemons and its stop
+    waits only a second for them; one still inside the websocket library's C code when the
+    interpreter finalizes crashed the process (SIGSEGV at exit on a loaded machine)."""
+    deadline = time.monotonic() + timeout_s
+    for thread in threads:
+        if thread is not threading.current_thread():
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))

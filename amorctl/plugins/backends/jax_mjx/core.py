@@ -265,7 +265,7 @@ class MjxTracking:
         data, torque, sens, (delay, head) = self.physics.control_step(
             state.data, state.delay, state.delay_head, target
         )
-        ee = sens[:, : e * 10].reshape(n, e, 10)
+        ee = sens[:, self.physics.ee_adr]  # [N, E, 10], amorctl's sensors looked up by name
         ee_pos, ee_quat, ee_vel = ee[..., 0:3], ee[..., 3:7], ee[..., 7:10]
         frames = self.sim_frames(data, ee_pos, ee_quat, ee_vel)
         ref = self.ref_frames[nxt]

@@ -5,12 +5,21 @@ servo characters (biped20) get the servo model's torque (PD on the command delay
 ``latency_steps`` physics steps, torque–speed clip: :func:`amorctl.sim.actuators.servo_torque`
 with ``xp = jax.numpy``) written to their motors in every substep, inside the jitted scan.
 
-One semantic difference between MJX 3.17 and MuJoCo C is corrected here (:func:`mjx_step`):
-with the ``implicitfast`` integrator, MuJoCo C's ``mjd_actuator_vel`` leaves out the velocity
-derivative (``kv``) of every actuator whose force is clamped by its ``forcerange``: a saturated
-actuator's force no longer depends on velocity. MJX's ``deriv_smooth_vel`` adds it for all
-actuators, so MJX over-damped humanoid36's saturated joints (0.03 rad qpos error after two
-control steps, docs/backends.md). Everything else is MJX's own ``mjx.step``.
+Two differences from MuJoCo C are corrected here (:func:`mjx_step`), both in the velocity
+derivative the ``implicitfast`` integrator folds into the mass matrix:
+
+- MuJoCo C's ``mjd_actuator_vel`` leaves out the velocity derivative (``kv``) of every actuator
+  whose force is clamped by its ``forcerange``: a saturated actuator's force no longer depends on
+  velocity. MJX's ``deriv_smooth_vel`` adds it for all actuators, so MJX over-damped humanoid36's
+  saturated joints (0.03 rad qpos error after two control steps, docs/backends.md).
+- torch-cpu's native servo is a MuJoCo ``dcmotor``, whose force MuJoCo C differentiates with
+  respect to velocity (:func:`servo_velocity_derivative`): ``-kd`` in the PD range, the back-EMF
+  slope ``-torque_limit / no_load_speed`` where the drive voltage is clamped (the torque–speed
+  limit), none at the current limit. MJX runs the servo as motors whose ``ctrl`` is the torque
+  (no derivative), so it integrated the servo's damping explicitly: at a step where a joint rode
+  the torque–speed limit, biped20's joint velocity then parted from torch-cpu's by 1.6e-2 rad/s.
+
+Everything else is MJX's own ``mjx.step``.
 """
 
 from __future__ import annotations
@@ -24,12 +33,13 @@ import numpy as np
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, collision_primitive, math
 from mujoco.mjx._src import forward as mjx_forward
-from mujoco.mjx._src.types import GeomType, IntegratorType
+from mujoco.mjx._src.types import BiasType, GeomType, IntegratorType
 
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
 from amorctl.sim.actuators import servo_torque
 from amorctl.sim.batch_sim import build_model
+from amorctl.sim.prepare import sensor_addresses
 
 
 def _joint_actuator(model: mujoco.MjModel, joint: int, character: str) -> int:
@@ -42,18 +52,56 @@ def _joint_actuator(model: mujoco.MjModel, joint: int, character: str) -> int:
     return (same or hits)[0]
 
 
-def mjx_step(m: Any, d: Any) -> Any:
+def servo_velocity_derivative(
+    q_target: Any,
+    q: Any,
+    qd: Any,
+    kp: Any,
+    kd: Any,
+    torque_limit: Any,
+    no_load_speed: Any | None,
+    xp: Any = np,
+) -> Any:
+    """d tau / d qd [N, J] of the servo as MuJoCo C differentiates its native ``dcmotor`` servo
+    (:func:`amorctl.sim.actuators.native_servo`; arguments as
+    :func:`~amorctl.sim.actuators.servo_torque`): ``-kd`` while the PD torque lies within the drive
+    voltage's range ``[-torque_limit - b, torque_limit - b]`` (``b`` the back-EMF,
+    :func:`~amorctl.sim.actuators.torque_bounds`), the back-EMF slope ``-torque_limit /
+    no_load_speed`` where the voltage is clamped, and 0 where the torque sits at the current
+    limit ``±torque_limit`` (the actuator's ``forcerange``: ``mjd_actuator_vel`` skips it)."""
+    tau_pd = kp * (q_target - q) - kd * qd
+    tau = servo_torque(q_target, q, qd, kp, kd, torque_limit, no_load_speed, xp=xp)
+    slope = -kd + 0.0 * qd
+    if no_load_speed is not None:
+        back = torque_limit * qd / no_load_speed
+        clamped = (tau_pd > torque_limit - back) | (tau_pd < -torque_limit - back)
+        slope = xp.where(clamped, -torque_limit / no_load_speed + 0.0 * qd, slope)
+    return xp.where(xp.abs(tau) >= torque_limit, 0.0, slope)
+
+
+def mjx_step(m: Any, d: Any, servo_vel: jax.Array | None = None) -> Any:
     """One physics step of one env (``mjx.step``), with MuJoCo C's implicitfast actuator rule:
     actuators whose force sits at a ``forcerange`` bound contribute no ``kv`` to the implicit
-    velocity derivative (``mjd_actuator_vel`` in MuJoCo's engine_derivative.c)."""
+    velocity derivative (``mjd_actuator_vel`` in MuJoCo's engine_derivative.c).
+
+    ``servo_vel`` [nu]: d force / d velocity of the actuators that have no bias (the servo
+    motors, whose force the caller computes; 0 for the others), added to the implicit
+    derivative as MuJoCo C adds its native servo's (:func:`servo_velocity_derivative`)."""
     if m.opt.integrator != IntegratorType.IMPLICITFAST:
         return mjx.step(m, d)
     d = mjx.forward(m, d)
     force, lo, hi = d.actuator_force, m.actuator_forcerange[:, 0], m.actuator_forcerange[:, 1]
     live = ~(m.actuator_forcelimited & ((force <= lo) | (force >= hi)))
     scale = live.astype(m.actuator_biasprm.dtype)
+    bias_kv = m.actuator_biasprm[:, 2] * scale
+    biastype = m.actuator_biastype
+    if servo_vel is not None:  # motors become affine in velocity for the derivative only
+        free = np.asarray(biastype == BiasType.NONE)
+        bias_kv = jnp.where(free, servo_vel * scale, bias_kv)
+        biastype = np.where(free, BiasType.AFFINE, biastype)
     unclamped = m.replace(
-        actuator_biasprm=m.actuator_biasprm.at[:, 2].multiply(scale),
+        actuator_biasprm=m.actuator_biasprm.at[:, 2].set(bias_kv),
+        actuator_biastype=biastype,
         actuator_gainprm=m.actuator_gainprm.at[:, 2].multiply(scale),
     )
     return mjx_forward.implicit(unclamped, d)
@@ -115,6 +163,10 @@ class MjxPhysics:
         self.actuators = jnp.asarray(acts, jnp.int32)
         self.gear = jnp.asarray(model.actuator_gear[acts, 0], jnp.float32)
         self.num_joints, self.num_ee = len(jids), len(ch.end_effectors)
+        # amorctl's sensors by name: a model's own sensors (an IMU) come first and shift them
+        sensors = sensor_addresses(model, ch)
+        self.ee_adr = jnp.asarray(sensors.ee, jnp.int32)  # [E, 10]: pos, quat, linvel
+        self.torque_adr = jnp.asarray(sensors.torque, jnp.int32)  # [J] actuatorfrc (PD only)
         if self.servo:
             self.kp = jnp.asarray([j.kp for j in ch.joints], jnp.float32)
             self.kd = jnp.asarray([j.kd for j in ch.joints], jnp.float32)
@@ -142,7 +194,7 @@ class MjxPhysics:
         [N, S, J], sensor readings of the last substep [N, nsensordata], (delay, head)).
         """
         step = jax.vmap(mjx_step, in_axes=(None, 0))
-        jn = self.num_joints
+        step_servo = jax.vmap(mjx_step, in_axes=(None, 0, 0))
 
         def sub(carry: tuple[Any, jax.Array, jax.Array], _: Any) -> tuple[Any, tuple[jax.Array, jax.Array]]:
             data, delay, head = carry
@@ -155,12 +207,15 @@ class MjxPhysics:
                     cmd, q, qd, self.kp, self.kd, self.torque_limit, self.no_load_speed, xp=jnp
                 )
                 ctrl = data.ctrl.at[:, self.actuators].set(tau / self.gear)
-                data = step(self.mx, data.replace(ctrl=ctrl))
+                dtau = servo_velocity_derivative(
+                    cmd, q, qd, self.kp, self.kd, self.torque_limit, self.no_load_speed, xp=jnp
+                )
+                vel = jnp.zeros_like(data.ctrl).at[:, self.actuators].set(dtau / self.gear**2)
+                data = step_servo(self.mx, data.replace(ctrl=ctrl), vel)
             else:
                 ctrl = data.ctrl.at[:, self.actuators].set(target)
                 data = step(self.mx, data.replace(ctrl=ctrl))
-                nsens = self.num_ee * 10  # actuatorfrc sensors follow the end effectors' 10 each
-                tau = data.sensordata[:, nsens : nsens + jn] * self.gear
+                tau = data.sensordata[:, self.torque_adr] * self.gear
             return (data, delay, head), (tau, data.sensordata)
 
         (data, delay, head), (torque, sens) = jax.lax.scan(
