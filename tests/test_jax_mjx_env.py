@@ -235,10 +235,10 @@ def test_mjx_physics_tracks_mujoco_c(character: str, amplitude: float, bound: fl
 
 
 @pytest.mark.slow
-def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path) -> None:
+def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path, capsys) -> None:
     """`train_run` with backend jax-mjx on a biped20 tracking env: the fused rollout (policy + MJX
     in one scan) trains, checkpoints, resumes to the same numbers, and torch-cpu's inference path
-    reads its policy."""
+    reads its policy; `evaluate`, `pareto` and `deploy export` run on the jax-mjx run unchanged."""
     import csv
     import dataclasses
 
@@ -293,3 +293,18 @@ def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path) -> None:
         view.reference_joint_pos(view.reference_index()), view.joint_pos(), atol=1e-5
     )  # RSI: the state is the reference frame
     assert view.end_effector_pos().shape == (4, len(view.character.end_effectors), 3)
+
+    import json
+
+    from amorctl.cli.main import main
+
+    full, motion = str(tmp_path / "full"), lib.clips[0].name
+    capsys.readouterr()
+    assert main(["evaluate", full, "--motion", motion, "--episodes", "1", "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["settings"][0]["metrics"]
+    assert metrics["episodes"] == 1 and 0 <= metrics["joint_mae_deg"] < 90
+    assert main(["pareto", full, "--samples", "2", "--out", str(tmp_path / "p"), "--json"]) == 0
+    front = json.loads(capsys.readouterr().out)
+    assert len(front["weights"]) == 2 and front["objectives"] == list(policy.objectives)
+    assert main(["deploy", "export", full, "--out", str(tmp_path / "bundle")]) == 0
+    assert (tmp_path / "bundle" / "policy.onnx").is_file()

@@ -257,7 +257,9 @@ def train(
     with distributed.session() as world:
         if world.distributed and not resume:
             out = world.broadcast(out)  # the default name has a time stamp: rank 0's
-        _train_here(config, out, resume, json_out, world, fixed_weights)
+        code = _train_here(config, out, resume, json_out, world, fixed_weights)
+    if code:  # after the session: the ranks leave the process group together (distributed.session)
+        raise typer.Exit(code)
 
 
 def _launch(nproc: int, args: list[str]) -> int:
@@ -295,15 +297,16 @@ def _train_here(
     json_out: bool,
     world: distributed.World,
     fixed_weights: str | None,
-) -> None:
-    """Train in this process (one rank under torchrun); rank 0 alone prints."""
+) -> int:
+    """Train in this process (one rank under torchrun); rank 0 alone prints. Returns the exit
+    status: 0, or 130 / 143 when SIGINT / SIGTERM stopped the run (after its checkpoint)."""
     if _jax_follower():  # jax-mjx multi-host: the same program, but only process 0 writes `out`
         with tempfile.TemporaryDirectory(prefix="amorctl-jax-process-") as tmp:
             scratch = Path(tmp) / "run"
             if resume:  # the run as process 0 sees it (a shared filesystem, or a copy per host)
                 shutil.copytree(out, scratch)
             train_run(config, scratch, resume=resume)
-        return
+        return 0
     if not world.is_main:
         json_out = True  # no live view
 
@@ -339,18 +342,14 @@ def _train_here(
         "checkpoint": str(result.checkpoint) if result.checkpoint else None,
         "metrics": {k: v for k, v in result.last_metrics.items() if math.isfinite(v)},
     }
+    code = SIGNAL_EXIT.get(result.signal, 130) if result.interrupted else 0
     if not world.is_main:  # other ranks stay quiet; their exit status still tells
-        if result.interrupted:
-            raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))
-        return
+        return code
     if json_out:
         print_json(summary)
-        if result.interrupted:
-            raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))
-        return
+        return code
     state = "interrupted" if result.interrupted else "done"
     console.print(
         f"{state} at iteration {result.end_iteration}; checkpoint {summary['checkpoint']}", highlight=False
     )
-    if result.interrupted:
-        raise typer.Exit(SIGNAL_EXIT.get(result.signal, 130))
+    return code
