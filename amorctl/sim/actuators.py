@@ -4,7 +4,12 @@ MuJoCo expresses armature, Coulomb friction (``frictionloss``) and viscous frict
 as joint properties. The servo on top (``ActuatorModel(kind="servo")``, see
 ``amorctl/core/specs.py``) is a PD law on a command delayed by ``latency_steps`` physics steps,
 whose torque is limited by the DC motor's torque–speed range (:func:`torque_bounds`). Two
-implementations, which agree to rounding (``tests/test_actuators.py``, ``tests/test_env.py``):
+implementations, which agree to rounding under MuJoCo's Euler integrator
+(``tests/test_actuators.py``, ``tests/test_env.py``). Under ``implicitfast`` MuJoCo also puts the
+native servo's velocity derivative (−kd in the PD range, the back-EMF slope while the voltage
+clamp binds) into the implicit step, which the reference applies explicitly: up to 1e-3 rad of
+``qpos`` apart after a saturating control step (docs/environment.md; jax-mjx adds the same
+derivative, ``jax_mjx/physics.py``):
 
 - **native** (:func:`native_servo`, what :class:`~amorctl.sim.batch_sim.BatchSim` runs): each joint
   actuator becomes a MuJoCo ``dcmotor`` with a position controller (``input="pos"``), a clamp on its

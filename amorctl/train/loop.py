@@ -25,6 +25,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -260,40 +261,13 @@ def _train(
     on_note: Callable[[str], None] | None,
 ) -> RunResult:
     out = run.path
-    backend = run.backend(config)
-    local = distributed.local_config(config, world)  # this rank's envs and seed
-    with world.agreeing():
-        env = make_env(local, backend)
-    # the trainer steps the env through the recorder (per-family survival, weight coverage); a
-    # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
-    recorder = None if callable(getattr(type(env), "fused_rollout", None)) else EpisodeRecorder(env)
-    trainer: Trainer = backend.make_trainer(env if recorder is None else recorder, local)
-    if getattr(trainer, "world_size", 1) != world.size:
-        raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
-    start = 0
-    with world.agreeing():
-        if ckpt is not None:
-            start = _restore(ckpt, local, run.config_path, env, trainer, world, on_note)
-        elif world.is_main:
-            out.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(run.config_path, to_toml(config))
-
+    env, recorder, trainer, start = _build(config, run, ckpt, world, on_note)
     total = config.run.iterations
     meta = run_meta(config, env)
-    snapshot = isinstance(env, SnapshotEnv)
     batch = config.env.num_envs * config.ppo.num_steps
 
     def checkpoint(iteration: int) -> Path:
-        env_state = env.get_state() if snapshot else None  # type: ignore[union-attr]
-        trainer_state = distributed.gather_snapshot(trainer.state_dict(), world)  # all ranks' parts
-        if env_state is not None:
-            env_state = distributed.gather_snapshot(env_state, world)
-        if trainer_state is None:  # not rank 0: wait until rank 0 has written it
-            return Path(world.broadcast(str(checkpoint_paths(run.checkpoint_dir, iteration)[1])))
-        path = save_checkpoint(run.checkpoint_dir, iteration, meta, trainer_state, env_state)
-        prune_checkpoints(run.checkpoint_dir, config.run.keep_checkpoints)
-        saved.append(path)
-        return Path(world.broadcast(str(path)))
+        return _checkpoint(run, config, world, iteration, meta, env, trainer, saved)
 
     metrics_log = (
         _metrics_log(out, config, start if ckpt is not None else None)
@@ -341,6 +315,58 @@ def _train(
         if callable(close):
             close()
     return RunResult(out, start, iteration, interrupted, last_path, last, signal_name)
+
+
+def _build(
+    config: TrainConfig,
+    run: RunDir,
+    ckpt: Checkpoint | None,
+    world: distributed.World,
+    on_note: Callable[[str], None] | None,
+) -> tuple[VectorEnv, EpisodeRecorder | None, Trainer, int]:
+    """This rank's env, its episode recorder (None for fused envs), the trainer restored from
+    ``ckpt`` (else the run's config written) and the iteration to start at."""
+    backend = run.backend(config)
+    local = distributed.local_config(config, world)  # this rank's envs and seed
+    with world.agreeing():
+        env = make_env(local, backend)
+    # the trainer steps the env through the recorder (per-family survival, weight coverage); a
+    # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
+    recorder = None if callable(getattr(type(env), "fused_rollout", None)) else EpisodeRecorder(env)
+    trainer: Trainer = backend.make_trainer(env if recorder is None else recorder, local)
+    if getattr(trainer, "world_size", 1) != world.size:
+        raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
+    start = 0
+    with world.agreeing():
+        if ckpt is not None:
+            start = _restore(ckpt, local, run.config_path, env, trainer, world, on_note)
+        elif world.is_main:
+            run.path.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(run.config_path, to_toml(config))
+    return env, recorder, trainer, start
+
+
+def _checkpoint(
+    run: RunDir,
+    config: TrainConfig,
+    world: distributed.World,
+    iteration: int,
+    meta: dict[str, Any],
+    env: VectorEnv,
+    trainer: Trainer,
+    saved: list[Path],
+) -> Path:
+    """Save iteration ``iteration`` (rank 0 writes every rank's parts); its path on every rank."""
+    env_state = env.get_state() if isinstance(env, SnapshotEnv) else None
+    trainer_state = distributed.gather_snapshot(trainer.state_dict(), world)  # all ranks' parts
+    if env_state is not None:
+        env_state = distributed.gather_snapshot(env_state, world)
+    if trainer_state is None:  # not rank 0: wait until rank 0 has written it
+        return Path(world.broadcast(str(checkpoint_paths(run.checkpoint_dir, iteration)[1])))
+    path = save_checkpoint(run.checkpoint_dir, iteration, meta, trainer_state, env_state)
+    prune_checkpoints(run.checkpoint_dir, config.run.keep_checkpoints)
+    saved.append(path)
+    return Path(world.broadcast(str(path)))
 
 
 def _diverged_total(env: VectorEnv) -> int:
