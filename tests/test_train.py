@@ -366,6 +366,12 @@ def _edit_checkpoint(out: Path, change) -> Path:
         (lambda r: r["trainer"].update(episodes=1.5), "trainer.episodes = 1.5 must be an integer >= 0"),
         (lambda r: r["trainer"]["optimizer_param_groups"][0].pop("eps"), "optimizer_param_groups\\[0\\].eps"),
         (lambda r: r["trainer"].update(learning_rate="fast"), "learning_rate = 'fast' must be a finite"),
+        (
+            lambda r: r["trainer"]["optimizer_param_groups"][0].update(betas=[1e308, 0.999]),
+            "betas = \\[1e\\+308",
+        ),
+        (lambda r: r["trainer"]["optimizer_param_groups"][0].update(eps=-1.0), "eps = -1.0; expected finite"),
+        (lambda r: r["trainer"].update(learning_rate=1e308), "learning_rate = 1e\\+308; expected a finite"),
     ],
 )
 def test_checkpoint_metadata_is_checked_by_type_and_meaning(

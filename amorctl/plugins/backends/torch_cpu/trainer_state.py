@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -66,6 +67,45 @@ def _lever_arrays(trainer: Any, arrays: dict[str, Any]) -> None:
             arrays[f"feedback.{key}"] = getattr(trainer.feedback, key).numpy().copy()
 
 
+#: Adam's hyperparameters in a checkpoint: the range each must lie in (``betas``: each entry).
+_ADAM_RANGES = {"lr": (0.0, 1.0), "betas": (0.0, 1.0), "eps": (0.0, 1.0), "weight_decay": (0.0, 1e6)}
+
+
+def _check_optimizer_meta(meta: dict[str, Any], fresh_groups: list[dict[str, Any]]) -> None:
+    """Refuse a checkpoint whose learning rate or Adam hyperparameters are out of range (types
+    and structure are :func:`amorctl.train.checkpoint.check_like`'s job; Adam would accept, say,
+    betas of 1e308 and fail only mid-iteration, with torch's own message)."""
+    rate = meta.get("learning_rate")
+    if not _number_in(rate, 0.0, 1.0):
+        raise AmorError(f"checkpoint has learning_rate = {rate!r}; expected a finite number in [0, 1]")
+    groups = meta.get("optimizer_param_groups")
+    if not isinstance(groups, list) or len(groups) != len(fresh_groups):
+        raise AmorError(
+            f"checkpoint's optimizer_param_groups do not match this trainer's ({len(fresh_groups)} group(s))"
+        )
+    for i, (saved, fresh) in enumerate(zip(groups, fresh_groups, strict=True)):
+        if not isinstance(saved, dict) or set(saved) != set(fresh):
+            raise AmorError(f"checkpoint's optimizer_param_groups[{i}] has other keys than this trainer's")
+        for key, (low, high) in _ADAM_RANGES.items():
+            values = saved[key] if key == "betas" and isinstance(saved[key], list | tuple) else [saved[key]]
+            if key == "betas" and len(values) != 2:
+                raise AmorError(
+                    f"checkpoint's optimizer_param_groups[{i}].betas = {saved[key]!r}; expected 2 numbers"
+                )
+            if not all(_number_in(v, low, high, strict_high=key != "weight_decay") for v in values):
+                raise AmorError(
+                    f"checkpoint's optimizer_param_groups[{i}].{key} = {saved[key]!r}; expected finite "
+                    f"number(s) in [{low:g}, {high:g})"
+                )
+
+
+def _number_in(value: Any, low: float, high: float, strict_high: bool = False) -> bool:
+    """``value`` is an int or float (not a bool), finite, in [low, high] (or [low, high))."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return False
+    return low <= value < high if strict_high else low <= value <= high
+
+
 def load_trainer_state(trainer: Any, state: Snapshot) -> None:
     """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
     meta, arrays = state.meta, state.arrays
@@ -77,6 +117,7 @@ def load_trainer_state(trainer: Any, state: Snapshot) -> None:
     for key, value in expect.items():
         if meta.get(key) != value:
             raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+    _check_optimizer_meta(meta, trainer.optimizer.param_groups)
     try:
         load_modules(trainer._modules(), arrays)
         optim_state: dict[int, dict[str, torch.Tensor]] = {}
