@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from amorctl.registry import reset_registry
@@ -46,9 +48,10 @@ def toy_run(tmp_path_factory: pytest.TempPathFactory):
     return out
 
 
-@pytest.fixture(scope="session")
-def tracking_run(tmp_path_factory: pytest.TempPathFactory):
-    """A tiny biped20 tracking run (one iteration) on two synthetic clips ``sway_a`` / ``sway_b``."""
+def train_tiny_tracking_run(root: Path, label: str, **env: object) -> Path:
+    """Train ``root/run``: one iteration of biped20 on two 1 s synthetic clips ``sway_a`` /
+    ``sway_b`` (``root/ds.mcap``), 4 envs, 16-wide networks, one torch thread; ``env`` overrides
+    the ``[env]`` table (``episode_seconds`` 0.4 by default)."""
     import dataclasses
 
     import torch
@@ -59,7 +62,6 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
     from amorctl.registry import get_registry
     from amorctl.train.loop import train_run
 
-    root = tmp_path_factory.mktemp("tracking-run")
     lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
     clips = tuple(
         dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
@@ -70,11 +72,11 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
         {
             "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
             "env": {"kind": "tracking", "character": "biped20", "dataset": str(root / "ds.mcap"),
-                    "num_envs": 4, "episode_seconds": 0.4},
+                    "num_envs": 4, "episode_seconds": 0.4, **env},
             "network": {"actor_hidden": [16], "critic_hidden": [16]},
             "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
         },
-        "tracking_run fixture",
+        label,
     )  # fmt: skip
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -84,6 +86,18 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
         torch.set_num_threads(threads)
     reset_registry()
     return root / "run"
+
+
+@pytest.fixture(scope="session")
+def make_tracking_run():
+    """:func:`train_tiny_tracking_run`, for test modules' own variants of :func:`tracking_run`."""
+    return train_tiny_tracking_run
+
+
+@pytest.fixture(scope="session")
+def tracking_run(tmp_path_factory: pytest.TempPathFactory):
+    """A tiny biped20 tracking run (one iteration) on two synthetic clips ``sway_a`` / ``sway_b``."""
+    return train_tiny_tracking_run(tmp_path_factory.mktemp("tracking-run"), "tracking_run fixture")
 
 
 # --- a trained toy-smooth run (issue 7's smooth-schedule test): `track` vs `smooth`, seconds ---

@@ -3,7 +3,6 @@ sim2sim runtime (reproduces `tune`, randomization, watchdog), `deploy check`, ba
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import subprocess
@@ -20,7 +19,6 @@ from amorctl.deploy.bundle import METADATA_KEYS, ONNX_FILE, compiled_model_hash,
 from amorctl.deploy.export import export_bundle, parity_observations, split_observation
 from amorctl.deploy.randomize import load_randomization
 from amorctl.deploy.runtime import Runtime
-from amorctl.registry import reset_registry
 
 torch.set_num_threads(1)
 TRACKING7 = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
@@ -28,35 +26,15 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def deploy_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def deploy_run(tmp_path_factory: pytest.TempPathFactory, make_tracking_run) -> Path:
     """A one-iteration biped20 residual-action run on two 1 s synthetic clips, 2.5 s episodes (so
     `tune` rolls out 2 s without truncation)."""
-    from amorctl.core.config import TrainConfig, merge
-    from amorctl.envs.synthetic import synthetic_library
-    from amorctl.motion.dataset import write_dataset
-    from amorctl.registry import get_registry
-    from amorctl.train.loop import train_run
-
-    root = tmp_path_factory.mktemp("deploy-run")
-    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
-    clips = tuple(
-        dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
-    )
-    write_dataset(root / "ds.mcap", dataclasses.replace(lib, clips=clips))
-    config = merge(
-        TrainConfig(),
-        {
-            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
-            "env": {"kind": "tracking", "character": "biped20", "dataset": str(root / "ds.mcap"),
-                    "num_envs": 4, "episode_seconds": 2.5, "action_mode": "residual"},
-            "network": {"actor_hidden": [16], "critic_hidden": [16]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
-        },
+    return make_tracking_run(
+        tmp_path_factory.mktemp("deploy-run"),
         "deploy_run fixture",
-    )  # fmt: skip
-    train_run(config, root / "run")
-    reset_registry()
-    return root / "run"
+        episode_seconds=2.5,
+        action_mode="residual",
+    )
 
 
 @pytest.fixture(scope="module")

@@ -20,49 +20,19 @@ import pytest
 from amorctl import __version__
 from amorctl.cli.main import main
 from amorctl.deploy.bundle import METADATA_KEYS, ONNX_FILE, read_bundle
-from amorctl.registry import reset_registry
 
 TRACKING7 = ("up", "lo", "feet", "rbs", "root", "vel", "smooth")
 
 
 @pytest.fixture(scope="module")
-def absolute_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def absolute_run(tmp_path_factory: pytest.TempPathFactory, make_tracking_run) -> Path:
     """A one-iteration biped20 run with absolute actions on two 1 s synthetic clips."""
-    import dataclasses
-
-    import torch
-
-    from amorctl.core.config import TrainConfig, merge
-    from amorctl.envs.synthetic import synthetic_library
-    from amorctl.motion.dataset import write_dataset
-    from amorctl.registry import get_registry
-    from amorctl.train.loop import train_run
-
-    root = tmp_path_factory.mktemp("deploy-abs-run")
-    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
-    clips = tuple(
-        dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
-    )
-    write_dataset(root / "ds.mcap", dataclasses.replace(lib, clips=clips))
-    config = merge(
-        TrainConfig(),
-        {
-            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
-            "env": {"kind": "tracking", "character": "biped20", "dataset": str(root / "ds.mcap"),
-                    "num_envs": 4, "episode_seconds": 1.0, "action_mode": "absolute"},
-            "network": {"actor_hidden": [16], "critic_hidden": [16]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
-        },
+    return make_tracking_run(
+        tmp_path_factory.mktemp("deploy-abs-run"),
         "absolute_run fixture",
-    )  # fmt: skip
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        train_run(config, root / "run")
-    finally:
-        torch.set_num_threads(threads)
-    reset_registry()
-    return root / "run"
+        episode_seconds=1.0,
+        action_mode="absolute",
+    )
 
 
 @pytest.fixture(scope="module")

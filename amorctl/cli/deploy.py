@@ -7,7 +7,6 @@ Torch-free at import: ``export`` imports torch when it runs; ``run`` and ``check
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 from pathlib import Path
@@ -288,29 +287,9 @@ def check_cmd(
 def main(argv: list[str] | None = None) -> int:
     """``python -m amorctl.cli.deploy``: the deploy commands alone (no torch needed for run and
     check), with the same error convention as ``amorctl`` (one ``error:`` line, exit 2)."""
-    debug = os.environ.get("AMORCTL_DEBUG", "") not in ("", "0")
-    try:
-        app(args=argv, prog_name="amorctl deploy")
-    except SystemExit as exit_:
-        code = exit_.code
-        return code if isinstance(code, int) else (0 if code is None else 1)
-    except AmorError as err:
-        if debug:
-            raise
-        print(f"error: {err}", file=sys.stderr)
-        return err.exit_code
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:  # anything unexpected: one line unless debugging
-        if debug:
-            raise
-        print(
-            f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
-            file=sys.stderr,
-        )
-        return 1
-    return 0
+    from amorctl.cli.main import run_app  # the lazy root loads this module: import it at call time
+
+    return run_app(app, "amorctl deploy", argv)
 
 
 if __name__ == "__main__":

@@ -94,9 +94,16 @@ def _root(
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero."""
+    return run_app(app, "amorctl", argv)
+
+
+def run_app(typer_app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> int:
+    """Run ``typer_app`` with amorctl's error convention and return the exit status: an
+    :class:`AmorError` prints one ``error:`` line (its exit code), Ctrl-C prints ``interrupted``
+    (130), anything else one line (1); ``AMORCTL_DEBUG=1`` re-raises for the traceback."""
     debug = os.environ.get("AMORCTL_DEBUG", "") not in ("", "0")
     try:
-        app(args=argv, prog_name="amorctl")  # standalone mode: usage errors exit 2 via SystemExit
+        typer_app(args=argv, prog_name=prog_name)  # standalone mode: usage errors exit 2 via SystemExit
     except SystemExit as exit_:
         code = exit_.code
         return code if isinstance(code, int) else (0 if code is None else 1)
