@@ -8,7 +8,7 @@ training throughput of one jax-mjx iteration (fused rollout + update) after comp
 
     python benchmarks/backend_throughput.py                       # biped20 + humanoid36, 256/1024/4096
     python benchmarks/backend_throughput.py --characters biped20 --envs 256 --steps 20
-    python benchmarks/backend_throughput.py --envs 4096 16384 --train --skip-torch   # a GPU (gpu.sh)
+    python benchmarks/backend_throughput.py --envs 4096 16384 --jax-steps 20 --train --skip-torch  # a GPU
 
 Every measurement runs in its own Python process (``--one``), with a time limit: one backend's
 threads never share a process with the other's (an earlier in-process version stalled in the
@@ -95,7 +95,8 @@ def measure(args: argparse.Namespace) -> dict[str, float | str | int]:
 
 def run_isolated(args: argparse.Namespace, character: str, n: int, backend: str) -> dict[str, object]:
     """One measurement in a fresh Python process; a ``timeout``/``error`` row when it fails."""
-    command = [sys.executable, __file__, "--one", character, str(n), backend, "--steps", str(args.steps),
+    steps = args.jax_steps if backend == "jax-mjx" else args.steps
+    command = [sys.executable, __file__, "--one", character, str(n), backend, "--steps", str(steps),
                "--iterations", str(args.iterations)] + ["--train"] * args.train  # fmt: skip
     row: dict[str, object] = {"character": character, "envs": n, "backend": backend}
     t0 = time.perf_counter()
@@ -113,7 +114,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--characters", nargs="+", default=["biped20", "humanoid36"])
     parser.add_argument("--envs", nargs="+", type=int, default=[256, 1024, 4096])
-    parser.add_argument("--steps", type=int, default=20, help="timed control steps per measurement")
+    parser.add_argument("--steps", type=int, default=20, help="timed torch-cpu control steps")
+    parser.add_argument("--jax-steps", type=int, default=3, help="timed jax-mjx control steps")
     parser.add_argument("--train", action="store_true", help="also time jax-mjx training iterations")
     parser.add_argument("--iterations", type=int, default=3, help="timed training iterations")
     parser.add_argument("--skip-torch", action="store_true", help="only jax-mjx (a GPU machine)")

@@ -30,5 +30,5 @@ if not gpus:
     raise SystemExit("no GPU visible to JAX: check the NVIDIA driver and the jax[cuda12] install")
 PY
 # shellcheck disable=SC2086
-"$VENV/bin/python" benchmarks/backend_throughput.py --skip-torch --train --steps 50 --iterations 5 \
+"$VENV/bin/python" benchmarks/backend_throughput.py --skip-torch --train --jax-steps 50 --iterations 5 \
     --characters $CHARACTERS --envs $ENVS

@@ -5,7 +5,7 @@ every control step running the policy (one batched forward pass), the tracking e
 observations, rewards, resets) and the rollout bookkeeping. The lower bound is the physics alone:
 the same :class:`~amorctl.sim.batch_sim.BatchSim` stepped the same number of batched control steps
 from the same start states, with no policy, observations or rewards. The ratio
-``sweep time / physics time`` is the overhead of everything else (goal: <= 1.3).
+``sweep time / physics time`` is the overhead of everything else (goal: <= 1.2).
 
 Without ``--run``, the policy is an untrained network of the run config's size (its cost is the
 same as a trained one's; episodes may end earlier when it falls, and then the physics bound is

@@ -232,6 +232,7 @@ class Science:
             f"(`walk`, `walker/*`)",
             "budget_minutes": a.budget_minutes,
             "out": str(self.out),
+            "other_report": a.other_report,
             "rerun": {
                 "train": base + " --only train",
                 "sweeps": base + " --skip-train --only sweeps",
@@ -290,6 +291,8 @@ class Science:
         cfg = self.base_config()
         train(cfg, self.moppo, budget_s=self.args.budget_minutes * 60, stop_at=self.stop_at(0), label="MOPPO")
         self.results["train"] = run_summary(self.moppo, f"MOPPO (preset `{self.args.preset}` sampling)")
+        meta = self.results["meta"]
+        self.results["train"]["made_by"] = {k: meta[k] for k in ("command", "commit", "date_utc")}
 
     def part_ppo(self) -> None:
         iters = self.moppo_iterations()
@@ -520,6 +523,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--curve-points", type=int, default=8)
     p.add_argument("--curve-episodes", type=int, default=32)
     p.add_argument("--kfixed-episodes", type=int, default=8)
+    p.add_argument("--other-report", default="", help="markdown naming the other character's report")
     args = p.parse_args(argv)
     args.out = args.out or Path(f"runs/science-{args.character}")
     parts = [s.strip() for s in args.only.split(",") if s.strip()]
@@ -548,7 +552,8 @@ def main(argv: list[str] | None = None) -> None:
             ("ppo", sci.ppo, "fixed uniform (PPO)"),
         ):
             if RunDir(run).exists():
-                sci.results[key] = run_summary(run, label)
+                made = sci.results.get(key, {}).get("made_by")
+                sci.results[key] = run_summary(run, label) | ({"made_by": made} if made else {})
     for part in PARTS:
         if part not in args.parts or (part in ("train", "ppo") and args.skip_train):
             continue

@@ -210,7 +210,9 @@ def render_markdown(results: dict[str, Any], protocol: str) -> str:
     lines += _kfixed_section(results)
     lines += _bar_section(results)
     other = meta.get("rerun", {}).get("other_character")
-    if other:
+    if meta.get("other_report"):
+        lines += ["## Other characters", "", f"Measured in a run of its own: {meta['other_report']}", ""]
+    elif other:
         lines += ["## Other characters", "", f"Not measured in this run. The same protocol: `{other}`", ""]
     return "\n".join(lines).rstrip() + "\n"
 
@@ -296,6 +298,10 @@ def _training_section(results: dict[str, Any]) -> list[str]:
             f"{_f(t['wall_s'] / 60)} | {_f(t['env_steps'] / max(t['wall_s'], 1e-9))} | "
             f"{_f(t.get('train_survival'))} |"
         )
+    made = results.get("train", {}).get("made_by")
+    if made and made["command"] != results.get("meta", {}).get("command"):  # trained by an earlier command
+        out += ["", f"The MOPPO run was trained by `{made['command']}` (commit `{made['commit']}`, "
+                f"{made['date_utc']}){made.get('note', '')}."]  # fmt: skip
     return [*out, ""]
 
 
@@ -422,7 +428,28 @@ def _kfixed_section(results: dict[str, Any]) -> list[str]:
         f"- survival: PPO×7 {', '.join(_f(v) for v in kf['survival_fixed'])}; AMOR "
         f"{', '.join(_f(v) for v in kf['survival_amor'])}",
     ]
-    return [*out, ""]
+    return [*out, *_kfixed_reading(kf, results.get("curves")), ""]
+
+
+def _kfixed_reading(kf: dict[str, Any], curves: dict[str, Any] | None) -> list[str]:
+    """What the numbers say when most fixed-weight policies fell: each had 1/7 of the samples."""
+    if float(np.mean(kf["survival_fixed"])) >= 0.5:
+        return []
+    each = kf["env_steps_total"] / len(kf["survival_fixed"])
+    walked = [r["env_steps"] for r in (curves or {}).get("rows", []) if r["ppo_uniform"]["survival"] >= 0.8]
+    first = (
+        f"; the uniform-w PPO run of the curves above first survived ≥ 80 % at {_f(walked[0])} env steps"
+        if walked
+        else ""
+    )
+    return [
+        "",
+        f"Most fixed-weight policies fell: with the env steps split 7 ways, each trained on "
+        f"{_f(each)} env steps{first}. At this budget the comparison measures what sharing the "
+        "samples across weights buys (one policy that walks under every weight against seven that "
+        "have not learned to walk yet), not the shape of the trade-off; with 7× the budget each "
+        "fixed-weight policy would be trained as long as AMOR.",
+    ]
 
 
 def _bar_section(results: dict[str, Any]) -> list[str]:

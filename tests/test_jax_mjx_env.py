@@ -238,7 +238,8 @@ def test_mjx_physics_tracks_mujoco_c(character: str, amplitude: float, bound: fl
 def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path, capsys) -> None:
     """`train_run` with backend jax-mjx on a biped20 tracking env: the fused rollout (policy + MJX
     in one scan) trains, checkpoints, resumes to the same numbers, and torch-cpu's inference path
-    reads its policy; `evaluate`, `pareto` and `deploy export` run on the jax-mjx run unchanged."""
+    reads its policy; `evaluate`, `pareto`, `deploy export`, `tune` and `hlp` run on the jax-mjx run
+    unchanged."""
     import csv
     import dataclasses
 
@@ -308,3 +309,31 @@ def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path, capsys) ->
     assert len(front["weights"]) == 2 and front["objectives"] == list(policy.objectives)
     assert main(["deploy", "export", full, "--out", str(tmp_path / "bundle")]) == 0
     assert (tmp_path / "bundle" / "policy.onnx").is_file()
+    capsys.readouterr()
+    tuned = []
+    for weights in ("up=1", "smooth=1"):
+        args = ["tune", full, "--motion", motion, "--weights", weights, "--seconds", "0.2", "--json"]
+        assert main(args) == 0
+        tuned.append(json.loads(capsys.readouterr().out))
+    assert [t["steps"] for t in tuned] == [round(0.2 * view.character.control_hz)] * 2
+    assert all(np.isfinite(list(t["returns"].values())).all() for t in tuned)
+    assert tuned[0]["mean_action_rate"] != tuned[1]["mean_action_rate"]  # w reaches the policy
+
+    from amorctl.hlp.config import HlpConfig, to_toml
+    from amorctl.hlp.config import merge as hlp_merge
+
+    hlp_config = hlp_merge(HlpConfig(), {
+        "run": {"iterations": 2, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+        "env": {"num_envs": 4, "episode_seconds": 0.3},
+        "policy": {"actor_hidden": [16], "critic_hidden": [16]},
+        "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 2},
+        "discriminator": {"window": 4, "hidden": [16], "z_hidden": [8], "batch_size": 16, "replay_size": 32,
+                          "steps_per_iteration": 1},
+    }, "test")  # fmt: skip
+    (tmp_path / "hlp.toml").write_text(to_toml(hlp_config))
+    hlp_out, hlp_toml = str(tmp_path / "hlp"), str(tmp_path / "hlp.toml")
+    assert main(["hlp", "train", full, "--out", hlp_out, "--config", hlp_toml, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["end_iteration"] == 2
+    assert main(["hlp", "trace", hlp_out, "--motion", motion, "--json"]) == 0
+    segments = json.loads(capsys.readouterr().out)["traces"][0]["segments"]
+    assert all(sum(s["mean_w"].values()) == pytest.approx(1.0, abs=1e-5) for s in segments)

@@ -89,3 +89,39 @@ def test_report_renders_partial_results_with_verdicts_and_rerun_commands() -> No
     assert "8° vs 9° | **pass** |" in md
     assert "_Not measured (the run's deadline came first)._ To measure it: `python x --only front`" in md
     assert "| claim (i) | not measured | – |" in md
+
+
+def test_report_explains_fallen_fixed_policies_and_names_the_training_command() -> None:
+    kfixed = {"heavy": 0.7, "iterations_each": 10, "env_steps_total": 7000, "moppo_env_steps": 7000,
+              "episodes": 8, "motion": "walk", "hv_fixed_7": 0.0, "hv_amor_7": 0.5, "hv_amor_front": 0.6,
+              "survival_fixed": [0, 0, 0, 0, 0, 0.125, 0], "survival_amor": [1.0] * 7}  # fmt: skip
+    curve = [(500, 0.1), (2000, 0.84), (3000, 1.0)]
+    reading = " ".join(
+        sr._kfixed_reading(
+            kfixed, {"rows": [{"env_steps": n, "ppo_uniform": {"survival": s}} for n, s in curve]}
+        )
+    )
+    assert "each trained on 1,000 env steps; the uniform-w PPO run" in reading
+    assert "first survived ≥ 80 % at 2,000 env steps" in reading
+    made_by = {"command": "python science.py --only train", "commit": "abc", "date_utc": "d"}
+    train = {
+        "run": "r",
+        "weights": "MOPPO",
+        "iterations": 7,
+        "env_steps": 7000,
+        "wall_s": 60.0,
+        "made_by": made_by,
+    }
+    results = {
+        "meta": {"command": "python science.py --only kfixed", "other_report": "[h36](science-h36.md)"},
+        "train": train,
+        "kfixed": kfixed,
+    }
+    md = sr.render_markdown(results, "")
+    assert "Most fixed-weight policies fell: with the env steps split 7 ways, each trained on 1,000" in md
+    assert "The MOPPO run was trained by `python science.py --only train` (commit `abc`, d)." in md
+    assert "Measured in a run of its own: [h36](science-h36.md)" in md
+    kfixed["survival_fixed"] = [1.0] * 7  # the fixed-weight policies walk: no such reading
+    results["meta"]["command"] = made_by["command"]  # trained by the command of this report
+    md = sr.render_markdown(results, "")
+    assert "Most fixed-weight policies fell" not in md and "was trained by" not in md

@@ -20,7 +20,10 @@ from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
+from amorctl.plugins.backends.jax_mjx.xla_cpu import disable_concurrency_optimized_scheduler
 from amorctl.registry import hookimpl
+
+disable_concurrency_optimized_scheduler()
 
 NAME = "jax-mjx"
 #: import name -> distribution of the packages the ``jax`` extra installs
