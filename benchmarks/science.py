@@ -28,15 +28,11 @@ Tiny smoke test: --budget-minutes 1 --sweep-episodes 2 --front-samples 16 --doc 
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime as dt
-import itertools
 import json
 import math
 import os
-import platform
 import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -44,8 +40,10 @@ from typing import Any
 
 import numpy as np
 from learn_biped20_walk import save_subset, walking_subset
+from science_figures import plot_curves, plot_sweeps
 from science_measure import fixed_points, measure_bar, measure_front, measure_sweeps, scalarized
 from science_report import common_iterations, corner_heavy_weights, hv_reference, render_markdown
+from science_runs import ROOT, Clock, git_commit, machine, metrics_rows, run_summary, train
 
 from amorctl.analysis.eval_env import sweep_weights
 from amorctl.analysis.front import hypervolume
@@ -55,117 +53,9 @@ from amorctl.core.weights import format_weights
 from amorctl.motion.cache import default_dataset
 from amorctl.motion.dataset import load_dataset
 from amorctl.sim.cpus import available_cpus
-from amorctl.train.loop import train_run
 from amorctl.train.rundir import RunDir
 
 PARTS = ("train", "sweeps", "front", "bar", "ppo", "curves", "kfixed")
-ROOT = Path(__file__).resolve().parents[1]
-
-
-# ------------------------------------------------------------------------------------ helpers
-def metrics_rows(run: Path) -> list[dict[str, str]]:
-    path = run / "metrics.csv"
-    return list(csv.DictReader(path.open())) if path.exists() else []
-
-
-def trained_wall_s(rows: list[dict[str, str]]) -> float:
-    """Training wall time summed over resumed segments (``wall_time_s`` restarts at each resume)."""
-    wall = [float(r["wall_time_s"]) for r in rows]
-    return (wall[-1] + sum(a for a, b in itertools.pairwise(wall) if b < a)) if wall else 0.0
-
-
-def run_summary(run: Path, weights: str) -> dict[str, Any]:
-    rows = metrics_rows(run)
-    last = rows[-1] if rows else {}
-    return {
-        "run": str(run),
-        "weights": weights,
-        "iterations": int(float(last.get("iteration", 0))),
-        "env_steps": int(float(last.get("env_steps", 0))),
-        "wall_s": trained_wall_s(rows),
-        "train_survival": float(last["episode/survival"]) if last.get("episode/survival") else None,
-    }
-
-
-def git_commit() -> str:
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-        )
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True)
-    except OSError:
-        return "unknown"
-    return head.stdout.strip() + (" + uncommitted changes" if dirty.stdout.strip() else "")
-
-
-def machine() -> str:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import torch
-
-    return (
-        f"{model or platform.processor()}, {os.cpu_count()} cores, this process pinned to "
-        f"{available_cpus()} (affinity {sorted(os.sched_getaffinity(0))}), torch threads "
-        f"{torch.get_num_threads()}, load average at start {os.getloadavg()[0]:.2f}"
-    )
-
-
-class Clock:
-    """Wall-clock deadline (absolute, UTC): parts that would start after it are skipped."""
-
-    def __init__(self, deadline: str | None) -> None:
-        self.at: float | None = None
-        if deadline:
-            hh, mm = (int(x) for x in deadline.split(":"))
-            now = dt.datetime.now(dt.UTC)
-            self.at = now.replace(hour=hh, minute=mm, second=0, microsecond=0).timestamp()
-
-    def left(self) -> float:
-        return math.inf if self.at is None else self.at - time.time()
-
-
-# ------------------------------------------------------------------------------------ training
-def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: float, label: str) -> None:
-    """Train (or continue) the run in ``out`` until ``config.run.iterations``, the wall-clock budget
-    (summed over resumed segments) or the absolute time ``stop_at`` (epoch seconds)."""
-    run = RunDir(out)
-    resume = run.exists() and bool(run.checkpoints())
-    spent = trained_wall_s(metrics_rows(out)) if resume else 0.0
-    if resume:
-        config = override(run.config, run__iterations=config.run.iterations)
-        if run.checkpoints()[-1][0] >= config.run.iterations:
-            return
-    remaining = math.inf if budget_s is None else budget_s - spent
-    if remaining <= 0 or time.time() >= stop_at:
-        return
-    began = time.perf_counter()
-    shown = [began]
-
-    def progress(m: dict[str, float], total: int, elapsed: float) -> None:
-        if time.perf_counter() - shown[0] >= 60:
-            shown[0] = time.perf_counter()
-            print(
-                f"  {label}: iteration {m.get('iteration', 0):.0f}, {m.get('env_steps', 0):,.0f} env steps, "
-                f"{m.get('env_steps_per_s', 0):,.0f}/s, "
-                f"survival {m.get('episode/survival', float('nan')):.2f}, "
-                f"return·w {m.get('return/scalarized', float('nan')):.1f}, {elapsed / 60:.1f} min",
-                flush=True,
-            )
-
-    result = train_run(
-        config,
-        out,
-        resume=resume,
-        on_iteration=progress,
-        stop_when=lambda m: time.perf_counter() - began > remaining or time.time() > stop_at,
-    )
-    print(f"  {label}: iterations {result.start_iteration} -> {result.end_iteration}", flush=True)
 
 
 # ------------------------------------------------------------------------------------ parts
@@ -414,82 +304,6 @@ class Science:
             f"  kfixed: HV PPO×7 {k['hv_fixed_7']:.4g}, AMOR at the 7 weights {k['hv_amor_7']:.4g}",
             flush=True,
         )
-
-
-# ------------------------------------------------------------------------------------ figures
-def _pyplot() -> Any:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    return plt
-
-
-def plot_sweeps(res: dict[str, Any], raw: dict[str, np.ndarray], path: Path) -> bool:
-    plt = _pyplot()
-    if plt is None:
-        return False
-    names = list(res["objectives"])
-    cols = 4
-    fig, axes = plt.subplots(2, cols, figsize=(14, 6.4))
-    levels = np.array(res["levels"])
-    for ax, name in zip(axes.flat, names, strict=False):
-        s, r = res["objectives"][name], raw[name]
-        for i, lv in enumerate(levels):
-            ax.scatter(np.full(r.shape[1], lv), r[i], s=6, alpha=0.35, color="tab:blue")
-        ax.errorbar(levels, s["mean"], yerr=s["std"], color="k", marker="o", capsize=3)
-        ax.set_title(
-            f"{name}: ρ {s['spearman_rho'] if s['spearman_rho'] is None else round(s['spearman_rho'], 2)}"
-        )
-        ax.set_xlabel(f"w_{name}")
-        ax.grid(alpha=0.3)
-    last = axes.flat[len(names)] if len(names) < 2 * cols else None
-    sm = res.get("smooth_motion")
-    if last is not None and sm:
-        ax2 = last.twinx()
-        last.plot(levels, sm["action_rate"], "o-", color="tab:red", label="action rate (rad²)")
-        ax2.plot(levels, sm["joint_vel_rms"], "s--", color="tab:green", label="joint vel RMS (rad/s)")
-        last.set_title("smooth sweep: motion")
-        last.set_xlabel("w_smooth")
-        last.legend(loc="upper left", fontsize=7)
-        ax2.legend(loc="upper right", fontsize=7)
-    fig.suptitle("claim (ii): return of each objective vs its weight (rest equal); dots = episodes")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return True
-
-
-def plot_curves(rows: list[dict[str, Any]], path: Path, character: str) -> bool:
-    plt = _pyplot()
-    if plt is None:
-        return False
-    x = np.array([r["env_steps"] for r in rows]) / 1e6
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    for key, label, style in (
-        ("ppo_uniform", "PPO (fixed uniform w), at uniform w", "s-"),
-        ("moppo_uniform", "MOPPO, at uniform w", "o-"),
-        ("moppo_random", "MOPPO, at Dirichlet w", "^--"),
-    ):
-        axes[0].plot(x, [r[key]["return"] for r in rows], style, label=label)
-        axes[1].plot(x, [r[key]["survival"] for r in rows], style, label=label)
-    axes[0].set_ylabel("scalarized return w·J (10 s episode)")
-    axes[1].set_ylabel("survival over 10 s")
-    axes[1].set_ylim(-0.03, 1.03)
-    for ax in axes:
-        ax.set_xlabel("env steps (millions)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"{character} walking: MOPPO vs PPO at equal env steps")
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return True
 
 
 # ------------------------------------------------------------------------------------ main

@@ -1,0 +1,126 @@
+"""The runs of benchmarks/science.py: training to a wall-clock budget, run summaries, and where and
+when a measurement was taken (commit, machine, deadline)."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import itertools
+import math
+import os
+import platform
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+from amorctl.core.config import TrainConfig, override
+from amorctl.sim.cpus import available_cpus
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import RunDir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def metrics_rows(run: Path) -> list[dict[str, str]]:
+    path = run / "metrics.csv"
+    return list(csv.DictReader(path.open())) if path.exists() else []
+
+
+def trained_wall_s(rows: list[dict[str, str]]) -> float:
+    """Training wall time summed over resumed segments (``wall_time_s`` restarts at each resume)."""
+    wall = [float(r["wall_time_s"]) for r in rows]
+    return (wall[-1] + sum(a for a, b in itertools.pairwise(wall) if b < a)) if wall else 0.0
+
+
+def run_summary(run: Path, weights: str) -> dict[str, Any]:
+    rows = metrics_rows(run)
+    last = rows[-1] if rows else {}
+    return {
+        "run": str(run),
+        "weights": weights,
+        "iterations": int(float(last.get("iteration", 0))),
+        "env_steps": int(float(last.get("env_steps", 0))),
+        "wall_s": trained_wall_s(rows),
+        "train_survival": float(last["episode/survival"]) if last.get("episode/survival") else None,
+    }
+
+
+def git_commit() -> str:
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        )
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True)
+    except OSError:
+        return "unknown"
+    return head.stdout.strip() + (" + uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def machine() -> str:
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import torch
+
+    return (
+        f"{model or platform.processor()}, {os.cpu_count()} cores, this process pinned to "
+        f"{available_cpus()} (affinity {sorted(os.sched_getaffinity(0))}), torch threads "
+        f"{torch.get_num_threads()}, load average at start {os.getloadavg()[0]:.2f}"
+    )
+
+
+class Clock:
+    """Wall-clock deadline (absolute, UTC): parts that would start after it are skipped."""
+
+    def __init__(self, deadline: str | None) -> None:
+        self.at: float | None = None
+        if deadline:
+            hh, mm = (int(x) for x in deadline.split(":"))
+            now = dt.datetime.now(dt.UTC)
+            self.at = now.replace(hour=hh, minute=mm, second=0, microsecond=0).timestamp()
+
+    def left(self) -> float:
+        return math.inf if self.at is None else self.at - time.time()
+
+
+def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: float, label: str) -> None:
+    """Train (or continue) the run in ``out`` until ``config.run.iterations``, the wall-clock budget
+    (summed over resumed segments) or the absolute time ``stop_at`` (epoch seconds)."""
+    run = RunDir(out)
+    resume = run.exists() and bool(run.checkpoints())
+    spent = trained_wall_s(metrics_rows(out)) if resume else 0.0
+    if resume:
+        config = override(run.config, run__iterations=config.run.iterations)
+        if run.checkpoints()[-1][0] >= config.run.iterations:
+            return
+    remaining = math.inf if budget_s is None else budget_s - spent
+    if remaining <= 0 or time.time() >= stop_at:
+        return
+    began = time.perf_counter()
+    shown = [began]
+
+    def progress(m: dict[str, float], total: int, elapsed: float) -> None:
+        if time.perf_counter() - shown[0] >= 60:
+            shown[0] = time.perf_counter()
+            print(
+                f"  {label}: iteration {m.get('iteration', 0):.0f}, {m.get('env_steps', 0):,.0f} env steps, "
+                f"{m.get('env_steps_per_s', 0):,.0f}/s, "
+                f"survival {m.get('episode/survival', float('nan')):.2f}, "
+                f"return·w {m.get('return/scalarized', float('nan')):.1f}, {elapsed / 60:.1f} min",
+                flush=True,
+            )
+
+    result = train_run(
+        config,
+        out,
+        resume=resume,
+        on_iteration=progress,
+        stop_when=lambda m: time.perf_counter() - began > remaining or time.time() > stop_at,
+    )
+    print(f"  {label}: iterations {result.start_iteration} -> {result.end_iteration}", flush=True)
