@@ -73,6 +73,11 @@ class Science:
         self.results.setdefault("skipped", {})
         self.doc: Path = args.doc
         self.img = self.doc.parent / "img"
+        # figures: science-<character>-*.png, or the report's own stem when it extends that name
+        # (docs/science-biped20-survival.md -> science-biped20-survival-*.png), so reports of
+        # other runs of one character do not overwrite each other's figures
+        base = f"science-{args.character}"
+        self.figure_stem = self.doc.stem if self.doc.stem.startswith(base) else base
         self.moppo = self.out / "moppo"
         self.ppo = self.out / "ppo-uniform"
         self.dataset = self.out / "walking.mcap"
@@ -147,7 +152,8 @@ class Science:
   `amorctl evaluate RUN --sweep k` reports): w_k at 0, .25, .5, .75, 1, the rest share 1 - w_k
   equally; {a.sweep_episodes} episodes of 10 s per level on the walking clips (seed {a.eval_seed}),
   deterministic policy. Level means of the unweighted return of k; monotonic = every level's mean
-  above the one before; Spearman ρ between w_k and the return over all episodes (scipy); effect
+  above the one before; Spearman ρ between w_k and the return over all episodes (scipy; the
+  verdict's), and as a diagnostic over the episodes that survived only ("ρ survivors"); effect
   size = (mean at w_k = 1 − mean at w_k = 0) / std over episodes at w_k = 0; survival per level.
   For `smooth` the same envs and seed are rolled out again with the steps recorded: action rate =
   mean `||q*_t − q*_(t−1)||²` of the PD targets sent (`q* = reference + residual action`),
@@ -201,7 +207,7 @@ class Science:
     def part_sweeps(self) -> None:
         pol, cfg = self.policy()
         res, raw = measure_sweeps(pol, cfg, episodes=self.args.sweep_episodes, seed=self.args.eval_seed)
-        fig = self.img / f"science-{self.args.character}-sweeps.png"
+        fig = self.img / f"{self.figure_stem}-sweeps.png"
         if plot_sweeps(res, raw, fig):
             res["figure"] = self.rel(fig)
         self.results["sweeps"] = res
@@ -256,7 +262,7 @@ class Science:
                     f"PPO stopped at iteration {pp.checkpoints()[-1][0]} of MOPPO's "
                     f"{mo.checkpoints()[-1][0]} (the deadline), so the ratio is at that env-step count."
                 )
-            fig = self.img / f"science-{a.character}-curves.png"
+            fig = self.img / f"{self.figure_stem}-curves.png"
             if plot_curves(rows, fig, a.character):
                 res["figure"] = self.rel(fig)
         self.results["curves"] = res

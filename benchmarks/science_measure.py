@@ -37,6 +37,21 @@ def _limit_steps(config: TrainConfig) -> int:
         close_env(env)
 
 
+def survivors_rho(levels: np.ndarray, returns: np.ndarray, survived: np.ndarray | None) -> float | None:
+    """Spearman ρ(w_k, return_k) over the episodes that survived (a diagnostic beside the issue's
+    ρ over all episodes: it shows the trade-off among robots that stay up, apart from where they
+    fell). levels [L], returns and survived [L, E]; None when fewer than 3 survivors or no spread."""
+    from scipy import stats
+
+    if survived is None:
+        return None
+    x = np.repeat(np.asarray(levels, dtype=np.float64), returns.shape[1])[survived.ravel()]
+    y = np.asarray(returns, dtype=np.float64).ravel()[survived.ravel()]
+    if len(y) < 3 or np.ptp(y) == 0 or np.ptp(x) == 0:
+        return None
+    return float(stats.spearmanr(x, y).statistic)
+
+
 def measure_sweeps(
     policy: Any,
     config: TrainConfig,
@@ -61,11 +76,13 @@ def measure_sweeps(
         stats = level_stats(ws.levels, ws.returns, ws.survival)
         stats["spearman_rho"] = None if np.isnan(ws.spearman_rho) else float(ws.spearman_rho)
         stats["spearman_p"] = None if np.isnan(ws.spearman_p) else float(ws.spearman_p)
+        stats["spearman_rho_survivors"] = survivors_rho(ws.levels, ws.returns, ws.survived)
         out[name] = stats
         raw[name] = ws.returns
         print(
             f"  sweep {name:>6}: means {' '.join(f'{v:.1f}' for v in stats['mean'])}  "
-            f"rho {stats['spearman_rho']}  monotonic {stats['monotonic']}  effect {stats['effect_size']}  "
+            f"rho {stats['spearman_rho']} (survivors {stats['spearman_rho_survivors']})  "
+            f"monotonic {stats['monotonic']}  effect {stats['effect_size']}  "
             f"survival {' '.join(f'{v:.2f}' for v in stats['survival'])}",
             flush=True,
         )

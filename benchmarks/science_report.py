@@ -315,9 +315,9 @@ def _sweeps_section(results: dict[str, Any]) -> list[str]:
         f"policy, {sw['seconds']:.0f} s of evaluation. Level means of the swept objective's "
         "unweighted return (± std over episodes), survival per level:",
         "",
-        "| objective | " + " | ".join(f"w = {v:g}" for v in sw["levels"]) + " | ρ (p) | monotonic | "
-        "effect size | verdict |",
-        "| --- | " + " | ".join("---" for _ in sw["levels"]) + " | --- | --- | --- | --- |",
+        "| objective | " + " | ".join(f"w = {v:g}" for v in sw["levels"]) + " | ρ (p) | ρ survivors | "
+        "monotonic | effect size | verdict |",
+        "| --- | " + " | ".join("---" for _ in sw["levels"]) + " | --- | --- | --- | --- | --- |",
     ]
     for name, s in sw["objectives"].items():
         cells = [
@@ -328,6 +328,7 @@ def _sweeps_section(results: dict[str, Any]) -> list[str]:
             f"| `{name}` | "
             + " | ".join(cells)
             + f" | {_f(s.get('spearman_rho'))} ({_f(s.get('spearman_p'), 2)}) "
+            f"| {_f(s.get('spearman_rho_survivors'))} "
             f"| {_f(s['monotonic'])} | {_f(s['effect_size'])} | {_verdict(sweep_passes(s))} |"
         )
     sm = sw.get("smooth_motion")

@@ -181,6 +181,9 @@ def main_update(directory: Path, world: distributed.World) -> None:
     stats = trainer.update(half(batch, world.rank), rank_plans()[world.rank])
     trainer._update_normalizer(half(batch, world.rank).obs)
     arrays = module_arrays(trainer)
+    mine = half(batch, world.rank)
+    moments = trainer.replicas.return_moments(mine.returns, mine.advantages)  # the return scale's
+    arrays.update({f"moments.{i}": m.numpy() for i, m in enumerate(moments)})
     arrays["learning_rate"] = np.array(trainer.learning_rate)
     arrays["kl"] = np.array(stats["kl"])
     np.savez(directory / f"update{world.rank}.npz", **arrays)
@@ -465,6 +468,9 @@ def test_two_rank_update_equals_the_one_process_update_on_the_same_samples(tmp_p
     assert abs(float(ranks[0]["kl"]) - stats["kl"]) < 1e-6
     for rank in range(2):
         assert "parameters differ at iteration 1" in (tmp_path / f"mismatch{rank}.txt").read_text()
+    r, a = batch.returns.double(), batch.advantages.double()  # all-reduced = the whole batch's
+    for i, whole in enumerate((r.mean(0), (r * r).mean(0), (a * a).mean(0))):
+        np.testing.assert_allclose(ranks[0][f"moments.{i}"], whole.numpy(), rtol=1e-12, err_msg=str(i))
 
 
 def test_two_rank_run_is_replicated_and_resumes_to_the_same_metrics(tmp_path: Path) -> None:

@@ -223,7 +223,8 @@ def test_tracking_run_with_every_lever_resumes_bit_exactly(tmp_path) -> None:
             "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
                     "num_envs": 4, "episode_seconds": 0.06},
             "network": {"actor_hidden": [16], "critic_hidden": [16]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "return_norm": "value+advantage"},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "return_norm": "value+advantage",
+                    "survival_channel": True},
             "weights": {"alpha": 0.5, "corner_fraction": 0.2, "edge_fraction": 0.1, "axis_fraction": 0.2,
                         "adaptive_fraction": 0.3},
         },
@@ -234,6 +235,7 @@ def test_tracking_run_with_every_lever_resumes_bit_exactly(tmp_path) -> None:
     ckpt = load_checkpoint(list_checkpoints(tmp_path / "part" / "checkpoints")[-1][1])
     assert ckpt.env is not None and sum(ckpt.env.meta["weight_sampler"]["count"]) > 0  # episodes fed back
     assert "return_scale.ret_mean" in ckpt.trainer.arrays and "feedback.start_value" in ckpt.trainer.arrays
+    assert "survival_critic.net.0.weight" in ckpt.trainer.arrays
     resumed = train_run(config, tmp_path / "part", resume=True)
     assert (full.end_iteration, resumed.start_iteration, resumed.end_iteration) == (3, 1, 3)
 
@@ -244,6 +246,7 @@ def test_tracking_run_with_every_lever_resumes_bit_exactly(tmp_path) -> None:
     a, b = rows(tmp_path / "full"), rows(tmp_path / "part")
     keys = [k for k in a[-1] if k.startswith(("loss/", "return", "weights/", "explained_variance/"))]
     assert "weights/anchor_entropy" in keys and "return_scale/return_std/smooth" in keys
+    assert "explained_variance/survival" in keys
     for ra, rb in zip(a, b, strict=True):
         for key in keys:
             assert ra[key] == rb[key], (ra["iteration"], key)
@@ -274,3 +277,14 @@ def test_science_preset_is_quick_plus_the_levers() -> None:
     assert dataclasses.replace(science, weights=WeightsConfig(), ppo=quick.ppo) == quick
     assert dataclasses.replace(science.ppo, return_norm="off") == quick.ppo
     assert not science.weights.plain and science.ppo.return_norm != "off"
+
+
+def test_science_sc_preset_is_science_plus_the_survival_channel() -> None:
+    import dataclasses
+
+    from amorctl.core.config import load_preset
+
+    science, sc = load_preset("science"), load_preset("science_sc")
+    assert sc.ppo.survival_channel and sc.ppo.return_norm == "value+advantage"
+    assert dataclasses.replace(sc, ppo=science.ppo) == science
+    assert dataclasses.replace(sc.ppo, survival_channel=False, return_norm="value") == science.ppo

@@ -34,6 +34,19 @@ def test_level_stats_not_monotonic_and_no_spread() -> None:
     assert not sr.sweep_passes(s)  # not monotonic, and survival 0.5
 
 
+def test_survivors_rho_leaves_fallen_episodes_out() -> None:
+    import science_measure as sm
+
+    levels = np.array([0.0, 0.5, 1.0])
+    returns = np.array([[10.0, 11.0], [12.0, 13.0], [14.0, 2.0]])  # the last episode fell early
+    survived = np.array([[True, True], [True, True], [True, False]])
+    assert sm.survivors_rho(levels, returns, survived) == pytest.approx(0.9487, abs=1e-3)
+    everyone = np.ones_like(survived)
+    assert sm.survivors_rho(levels, returns, everyone) < 0.6  # the fall drags the all-episode ρ
+    assert sm.survivors_rho(levels, returns, None) is None
+    assert sm.survivors_rho(levels, returns, np.zeros_like(survived)) is None
+
+
 def test_step_pairs_skip_episode_ends_and_clip_switches() -> None:
     valid = np.array([[1, 1], [1, 1], [1, 1], [1, 0]], dtype=bool)
     episode = np.array([[0, 1], [0, 1], [0, 1], [0, -1]])

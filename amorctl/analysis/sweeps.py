@@ -363,7 +363,7 @@ class WeightSweep:
         objective: the swept objective's name.
         levels: [L] its weight at each level (the others share ``1 - level`` equally).
         returns: [L, E] its unweighted cumulative reward per episode.
-        survival: [L] survival rate per level.
+        survival: [L] survival rate per level; survived: [L, E] bool per episode (None: not kept).
         spearman_rho, spearman_p: rank correlation between weight and return over all L * E
             episodes, and its p-value (NaN when undefined, e.g. all returns equal).
     """
@@ -374,6 +374,7 @@ class WeightSweep:
     survival: np.ndarray
     spearman_rho: float
     spearman_p: float
+    survived: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -460,7 +461,8 @@ def weight_sweep(
     if ok.sum() >= 3 and np.ptp(returns.ravel()[ok]) > 0:
         res = stats.spearmanr(level_of[ok], returns.ravel()[ok])
         rho, p = float(res.statistic), float(res.pvalue)
-    return WeightSweep(objective, w[:, idx], returns, survived.reshape(n_lv, episodes).mean(axis=1), rho, p)
+    kept = survived.reshape(n_lv, episodes) > 0.5
+    return WeightSweep(objective, w[:, idx], returns, kept.mean(axis=1), rho, p, kept)
 
 
 def parse_reference_point(text: str, names: Sequence[str]) -> np.ndarray:

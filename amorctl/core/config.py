@@ -52,7 +52,7 @@ def _doc(
     return field(default=default, metadata={k: v for k, v in meta.items() if v is not None})
 
 
-PRESETS: tuple[str, ...] = ("quick", "paper", "science")
+PRESETS: tuple[str, ...] = ("quick", "paper", "science", "science_sc")
 ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
 ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
@@ -166,6 +166,11 @@ class PPOConfig:
         "off (the paper); value: per-objective value errors over running return stds; "
         "value+advantage: also A_k over running advantage stds before A·w",
         choices=RETURN_NORMS,
+    )
+    survival_channel: bool = _doc(
+        False,
+        "false (the paper); true: the survival bonus shared by all objectives gets its own critic "
+        "and advantage channel (weight 1) instead of sitting inside every objective's",
     )
 
 
@@ -367,6 +372,11 @@ def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             p.return_norm == "off" or torch_cpu,
             f"[ppo] return_norm = {p.return_norm!r} needs run.backend = 'torch-cpu' "
             f"(got {config.run.backend!r})",
+        ),
+        (
+            not p.survival_channel or (torch_cpu and config.env.kind == "tracking"),
+            "[ppo] survival_channel = true needs run.backend = 'torch-cpu' and env.kind = 'tracking' "
+            f"(got {config.run.backend!r}, {config.env.kind!r})",
         ),
     ]
 

@@ -21,6 +21,8 @@ class RewardSpace:
     descriptions: tuple[str, ...]
     low: np.ndarray  # [m] per-step lower bound (may be -inf)
     high: np.ndarray  # [m] per-step upper bound (may be +inf)
+    #: a bonus added to every objective on each transition that does not terminate (0: none)
+    survival_bonus: float = 0.0
 
     @property
     def shape(self) -> tuple[int]:

@@ -101,6 +101,7 @@ class TrackingEnv:
             descriptions=tuple(self.objectives.descriptions),
             low=np.asarray(self.objectives.low, dtype=np.float64),
             high=np.asarray(self.objectives.high, dtype=np.float64),
+            survival_bonus=float(getattr(self.objectives, "alive_bonus", 0.0)),
         )
         self.fixed_weights = None if fixed_weights is None else _check_weights(fixed_weights, m)
         self.weight_sampler = weight_sampler or WeightSampler(m)

@@ -1,7 +1,7 @@
 """MOPPO (the AMOR paper, Section 4) on PyTorch, CPU. The algorithm reads top to bottom here;
-the rollout batch (``batch.py``), data-parallel collectives (``replicas.py``), metrics
-(``trainer_metrics.py``), checkpoint state (``trainer_state.py``) and the levers of docs/moppo.md
-(``return_scale.py``, ``weight_feedback.py``) live beside it.
+the rollout batch (``batch.py``), data-parallel collectives (``replicas.py``), metrics and episode
+bookkeeping (``trainer_metrics.py``), checkpoint state (``trainer_state.py``) and the levers of
+docs/moppo.md (``return_scale.py``, ``survival_channel.py``, ``weight_feedback.py``) live beside it.
 
 Per iteration:
 
@@ -29,7 +29,8 @@ update on the union of the ranks' minibatches (up to float rounding). Without a 
 none of it runs and the single-process arithmetic is unchanged.
 
 Levers (docs/moppo.md, off by default = the paper): ``[ppo] return_norm`` scales each objective's
-value error (and optionally its advantage) by running statistics; with an adaptive
+value error (and optionally its advantage) by running statistics; ``[ppo] survival_channel`` gives
+the survival bonus its own critic and advantage channel (``survival_channel.py``); with an adaptive
 ``[weights]`` sampler the env exposes as ``env.weight_sampler``, each finished episode's
 predicted and achieved scalarized returns are fed back to it.
 
@@ -50,6 +51,7 @@ from torch import nn
 
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
+from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
 from amorctl.plugins.backends.torch_cpu.batch import Batch
 from amorctl.plugins.backends.torch_cpu.gae import gae
@@ -62,7 +64,13 @@ from amorctl.plugins.backends.torch_cpu.networks import (
 )
 from amorctl.plugins.backends.torch_cpu.replicas import Replicas
 from amorctl.plugins.backends.torch_cpu.return_scale import ReturnScale
-from amorctl.plugins.backends.torch_cpu.trainer_metrics import local_metrics, reduced_metrics
+from amorctl.plugins.backends.torch_cpu.survival_channel import (
+    channel_values,
+    channel_weights,
+    objective_values,
+    split_rewards,
+)
+from amorctl.plugins.backends.torch_cpu.trainer_metrics import local_metrics, record_episodes, reduced_metrics
 from amorctl.plugins.backends.torch_cpu.trainer_state import load_trainer_state, trainer_state
 from amorctl.plugins.backends.torch_cpu.weight_feedback import WeightFeedback
 
@@ -98,8 +106,19 @@ class MOPPOTrainer:
             torch.manual_seed(seed)
             self.actor = Actor(env.obs_dim, env.action_dim, network.actor_hidden, network.init_std)
             self.critic = Critic(env.obs_dim, self.num_objectives, network.critic_hidden)
+            self.survival_critic = (
+                Critic(env.obs_dim, 1, network.critic_hidden) if ppo.survival_channel else None
+            )
+        self.survival_bonus = float(getattr(env.reward_space, "survival_bonus", 0.0))
+        if self.survival_critic is not None and not self.survival_bonus > 0:
+            raise AmorError(
+                "[ppo] survival_channel = true needs objectives that share a survival bonus "
+                f"(this env's reward_space.survival_bonus is {self.survival_bonus})"
+            )
+        #: critic channels: the m objectives, plus the survival bonus with ``survival_channel``
+        self.channel_names = self.names + (("survival",) if self.survival_critic is not None else ())
         self.normalizer = RunningNormalizer(env.obs_dim, clip=network.obs_clip)
-        self.params = [*self.actor.parameters(), *self.critic.parameters()]
+        self.params = [*self.actor.parameters(), *self._critic_parameters()]
         self.optimizer = torch.optim.Adam(self.params, lr=self.learning_rate)
         # data-parallel over the default process group: rank 0's initial networks on every rank
         self.replicas = Replicas() if distributed else None
@@ -123,7 +142,9 @@ class MOPPOTrainer:
         self.episodes = 0
         # the levers (docs/moppo.md, Levers): per-objective return scaling, adaptive weight sampling
         norm = ppo.return_norm
-        self.return_scale = None if norm == "off" else ReturnScale(m, advantage=norm == "value+advantage")
+        channels = len(self.channel_names)
+        advantage = norm == "value+advantage"
+        self.return_scale = None if norm == "off" else ReturnScale(channels, advantage=advantage)
         sampler = getattr(env, "weight_sampler", None)
         adaptive = sampler is not None and bool(getattr(sampler, "adaptive", False))
         self.feedback = WeightFeedback(sampler, n, ppo.gamma) if adaptive else None
@@ -146,16 +167,8 @@ class MOPPOTrainer:
         """Fold observations [B, D] into the normalizer: this rank's, or all ranks' moments."""
         if self.replicas is None:
             self.normalizer.update(obs)
-            return
-        x = obs.to(torch.float64).reshape(-1, self.env.obs_dim)
-        count_sum = torch.cat([torch.tensor([float(x.shape[0])], dtype=torch.float64), x.sum(0)])
-        sums = self.replicas.sum_(count_sum)
-        count = float(sums[0])
-        if count == 0:
-            return
-        mean = sums[1:] / count
-        var = self.replicas.sum_(((x - mean) ** 2).sum(0)) / count
-        self.normalizer.fold(mean, var, count)
+        else:
+            self.replicas.fold_normalizer(self.normalizer, obs)
 
     # ------------------------------------------------------------------ networks
     def _autocast(self) -> contextlib.AbstractContextManager[Any]:
@@ -163,13 +176,29 @@ class MOPPOTrainer:
             return torch.autocast("cpu", dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
+    def _critic_parameters(self) -> list[nn.Parameter]:
+        """The critic's parameters, and the survival critic's with ``survival_channel``."""
+        extra = [] if self.survival_critic is None else list(self.survival_critic.parameters())
+        return [*self.critic.parameters(), *extra]
+
     def _forward(self, obs: torch.Tensor, critic: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Raw obs [B, D] -> (action mean [B, A], values [B, m] or None), float32 outputs."""
+        """Raw obs [B, D] -> (action mean [B, A], channel values [B, C] or None), float32 outputs.
+
+        C = m, or m + 1 with ``survival_channel`` (see :func:`survival_channel.channel_values`)."""
         x = self.normalizer(obs)
         with self._autocast():
             mean = self.actor(x)
             values = self.critic(x) if critic else None
-        return mean.float(), (values.float() if values is not None else None)
+            survival = self.survival_critic(x) if critic and self.survival_critic is not None else None
+        if values is None:
+            return mean.float(), None
+        if survival is None:
+            return mean.float(), values.float()
+        return mean.float(), channel_values(values.float(), survival.float())  # V - S in float32
+
+    def objective_view(self, channels: torch.Tensor) -> torch.Tensor:
+        """Channel quantities [..., C] -> per-objective ones [..., m] (values, returns)."""
+        return channels if self.survival_critic is None else objective_values(channels)
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
@@ -184,7 +213,7 @@ class MOPPOTrainer:
         """Critic values [N, m] for raw observations [N, D]."""
         _, v = self._forward(torch.as_tensor(obs, dtype=torch.float32))
         assert v is not None
-        return v.numpy()
+        return self.objective_view(v).numpy()
 
     # ------------------------------------------------------------------ 1. rollout
     @torch.no_grad()
@@ -192,13 +221,13 @@ class MOPPOTrainer:
         """Step the envs ``num_steps`` times with the current policy; returns the batch (advantages
         not yet filled in) and the time spent in the env and in the policy's forward passes."""
         T, N, m = self.cfg.num_steps, self.env.num_envs, self.num_objectives
-        D, A = self.env.obs_dim, self.env.action_dim
+        D, A, C = self.env.obs_dim, self.env.action_dim, len(self.channel_names)
         obs_buf = torch.zeros(T, N, D)
         act_buf = torch.zeros(T, N, A)
         mean_buf = torch.zeros(T, N, A)
         logp_buf = torch.zeros(T, N)
-        val_buf = torch.zeros(T, N, m)
-        next_val_buf = torch.zeros(T, N, m)
+        val_buf = torch.zeros(T, N, C)
+        next_val_buf = torch.zeros(T, N, C)
         rew_buf = torch.zeros(T, N, m)
         w_buf = torch.zeros(T, N, m)
         term_buf = torch.zeros(T, N, dtype=torch.bool)
@@ -224,9 +253,16 @@ class MOPPOTrainer:
                 final = torch.as_tensor(info["final_obs"], dtype=torch.float32)[trunc_buf[t]]
                 _, final_values = self._forward(final)
                 next_val_buf[t][trunc_buf[t]] = final_values
-            self._track_episodes(rew_buf[t], weights, term_buf[t], trunc_buf[t])
+            record_episodes(self, rew_buf[t], weights, term_buf[t], trunc_buf[t])
             if self.feedback is not None:
-                self.feedback.step(weights, value, rew_buf[t], term_buf[t], trunc_buf[t], next_val_buf[t])
+                self.feedback.step(
+                    weights,
+                    self.objective_view(value),
+                    rew_buf[t],
+                    term_buf[t],
+                    trunc_buf[t],
+                    self.objective_view(next_val_buf[t]),
+                )
             self.obs = torch.tensor(obs, dtype=torch.float32)
             t_env += t2 - t1
             t_policy += time.perf_counter() - t2 + t1 - t0
@@ -243,7 +279,7 @@ class MOPPOTrainer:
             actions=act_buf.reshape(T * N, A),
             log_probs=logp_buf.reshape(T * N),
             means=mean_buf.reshape(T * N, A),
-            values=val_buf.reshape(T * N, m),
+            values=val_buf.reshape(T * N, C),
             weights=w_buf.reshape(T * N, m),
             rewards=rew_buf,
             next_values=next_val_buf,
@@ -253,58 +289,36 @@ class MOPPOTrainer:
         )
         return batch, {"env": t_env, "policy": t_policy}
 
-    def _track_episodes(
-        self, rewards: torch.Tensor, weights: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor
-    ) -> None:
-        """Accumulate undiscounted per-objective episode returns; log the episodes that ended."""
-        self.ep_return += rewards.double()
-        self.ep_scalar += (rewards * weights).sum(-1).double()
-        self.ep_length += 1
-        ended = terminated | truncated
-        k = int(ended.sum())
-        if k == 0:
-            return
-        slots = (self.recent_ptr + torch.arange(k)) % EPISODE_WINDOW
-        self.recent_return[slots] = self.ep_return[ended]
-        self.recent_scalar[slots] = self.ep_scalar[ended]
-        self.recent_length[slots] = self.ep_length[ended].double()
-        self.recent_survived[slots] = (~terminated[ended]).double()
-        self.recent_ptr = int((self.recent_ptr + k) % EPISODE_WINDOW)
-        self.episodes += k
-        self.ep_return[ended] = 0.0
-        self.ep_scalar[ended] = 0.0
-        self.ep_length[ended] = 0
-
     # ------------------------------------------------------------------ 2. returns
     def compute_returns(self, batch: Batch) -> None:
-        """GAE per objective over [T, N, m]; fills ``batch.advantages`` and ``batch.returns`` [B, m]."""
-        T, N, m = batch.rewards.shape
+        """GAE per channel over [T, N, C]; fills ``batch.advantages`` and ``batch.returns`` [B, C]
+        (C = m, or m + 1 with ``survival_channel``: the objectives without the bonus, the bonus)."""
+        rewards = batch.rewards
+        if self.survival_critic is not None:
+            rewards = split_rewards(rewards, batch.terminated, self.survival_bonus)
+        T, N, C = rewards.shape
         advantages, returns = gae(
-            batch.rewards,
-            batch.values.reshape(T, N, m),
+            rewards,
+            batch.values.reshape(T, N, C),
             batch.next_values,
             batch.terminated,
             batch.truncated,
             self.cfg.gamma,
             self.cfg.gae_lambda,
         )
-        batch.advantages, batch.returns = advantages.reshape(T * N, m), returns.reshape(T * N, m)
+        batch.advantages, batch.returns = advantages.reshape(T * N, C), returns.reshape(T * N, C)
         if self.return_scale is not None:
             self._update_return_scale(batch.returns, batch.advantages)
 
     @torch.no_grad()
     def _update_return_scale(self, returns: torch.Tensor, advantages: torch.Tensor) -> None:
-        """Fold the rollout's targets and advantages [B, m] into the return scale (data-parallel:
+        """Fold the rollout's targets and advantages [B, C] into the return scale (data-parallel:
         the moments of all ranks' samples, so every rank scales alike)."""
         assert self.return_scale is not None
         if self.replicas is None:
             self.return_scale.update(returns, advantages)
-            return
-        r, a = returns.double(), advantages.double()
-        count = torch.tensor([float(r.shape[0])], dtype=torch.float64)
-        sums = self.replicas.sum_(torch.cat([count, r.sum(0), (r * r).sum(0), (a * a).sum(0)]))
-        mean, sq, adv_sq = (sums[1:] / sums[0]).reshape(3, self.num_objectives)
-        self.return_scale.update_moments(mean, sq, adv_sq)
+        else:
+            self.return_scale.update_moments(*self.replicas.return_moments(returns, advantages))
 
     # ------------------------------------------------------------------ 3. update
     def minibatch_loss(self, batch: Batch, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -322,7 +336,7 @@ class MOPPOTrainer:
         clip = self.cfg.clip_coef
         policy_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
 
-        # value loss over all m objectives (in units of each objective's return std when scaled)
+        # value loss over all C channels (in units of each objective's return std when scaled)
         returns, old_values = batch.returns[idx], batch.values[idx]
         if scale is None:  # the paper's loss, in the objectives' own units
             value_err = (values - returns) ** 2
@@ -366,12 +380,16 @@ class MOPPOTrainer:
     def scalarized_advantage(self, batch: Batch, idx: torch.Tensor) -> torch.Tensor:
         """The policy's advantage [k] of the samples ``idx``: each sample's vector advantage
         scalarized with its own weights (``A·w``, or ``(A / s)·w`` with ``return_norm =
-        "value+advantage"``), then normalized with the minibatch's (all ranks') mean and std."""
+        "value+advantage"``; the survival channel has weight 1), then normalized with the
+        minibatch's (all ranks') mean and std."""
         assert batch.advantages is not None, "call compute_returns first"
         vector_adv = batch.advantages[idx]
         if self.return_scale is not None and self.return_scale.advantage:
             vector_adv = vector_adv / self.return_scale.advantage_std()
-        adv = (vector_adv * batch.weights[idx]).sum(-1)
+        weights = batch.weights[idx]
+        if self.survival_critic is not None:
+            weights = channel_weights(weights)
+        adv = (vector_adv * weights).sum(-1)
         if self.replicas is None:
             return (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)
         a = adv.detach().double()  # the moments of the union of all ranks' minibatches
@@ -404,9 +422,9 @@ class MOPPOTrainer:
             self.optimizer.zero_grad(set_to_none=True)
             loss.backward()
             if self.replicas is not None:
-                stats = self._average_gradients(stats, len(idx))
+                stats = self.replicas.average_gradients(self.params, stats, len(idx))
             nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
-            nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+            nn.utils.clip_grad_norm_(self._critic_parameters(), self.cfg.max_grad_norm)
             self.optimizer.step()
             if self.cfg.lr_schedule == "adaptive":
                 self._adapt_learning_rate(float(stats["kl"]))
@@ -414,21 +432,6 @@ class MOPPOTrainer:
                 sums[key] = sums.get(key, 0.0) + float(value)
             count += 1
         return {key: value / count for key, value in sums.items()}
-
-    def _average_gradients(self, stats: dict[str, torch.Tensor], n: int) -> dict[str, torch.Tensor]:
-        """Data-parallel: replace this rank's gradients and minibatch statistics (means over its
-        ``n`` samples) by the sample-weighted means over all ranks, in one all-reduce."""
-        assert self.replicas is not None
-        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in self.params]
-        values = torch.stack([v.float() for v in stats.values()])
-        flat = torch.cat([*(g.reshape(-1) for g in grads), values, torch.ones(1)]) * float(n)
-        self.replicas.sum_(flat)
-        flat = flat / flat[-1]
-        offset = 0
-        for p, g in zip(self.params, grads, strict=True):
-            p.grad = flat[offset : offset + g.numel()].view_as(g).clone()
-            offset += g.numel()
-        return {key: flat[offset + i] for i, key in enumerate(stats)}
 
     def _adapt_learning_rate(self, kl: float) -> None:
         """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
@@ -467,7 +470,14 @@ class MOPPOTrainer:
 
     def _modules(self) -> dict[str, nn.Module]:
         """The networks and the normalizer by checkpoint prefix."""
-        return {"actor": self.actor, "critic": self.critic, "normalizer": self.normalizer}
+        modules: dict[str, nn.Module] = {
+            "actor": self.actor,
+            "critic": self.critic,
+            "normalizer": self.normalizer,
+        }
+        if self.survival_critic is not None:  # training state only: inference reads actor and critic
+            modules["survival_critic"] = self.survival_critic
+        return modules
 
     def state_dict(self) -> Snapshot:
         """Weights, normalizer, Adam state, RNG, current observations and episode statistics

@@ -46,6 +46,45 @@ class Replicas:
         self._run(self.dist.all_reduce, tensor, op=self.dist.ReduceOp.SUM)
         return tensor
 
+    def average_gradients(
+        self, params: list[nn.Parameter], stats: dict[str, torch.Tensor], n: int
+    ) -> dict[str, torch.Tensor]:
+        """Replace this rank's gradients of ``params`` and its minibatch statistics (means over its
+        ``n`` samples) by the sample-weighted means over all ranks, in one all-reduce."""
+        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in params]
+        values = torch.stack([v.float() for v in stats.values()])
+        flat = torch.cat([*(g.reshape(-1) for g in grads), values, torch.ones(1)]) * float(n)
+        self.sum_(flat)
+        flat = flat / flat[-1]
+        offset = 0
+        for p, g in zip(params, grads, strict=True):
+            p.grad = flat[offset : offset + g.numel()].view_as(g).clone()
+            offset += g.numel()
+        return {key: flat[offset + i] for i, key in enumerate(stats)}
+
+    def fold_normalizer(self, normalizer: Any, obs: torch.Tensor) -> None:
+        """Fold the moments of all ranks' observations [B, D] into ``normalizer``
+        (a :class:`~amorctl.plugins.backends.torch_cpu.networks.RunningNormalizer`)."""
+        x = obs.to(torch.float64).reshape(-1, normalizer.mean.shape[0])
+        sums = self.sum_(torch.cat([torch.tensor([float(x.shape[0])], dtype=torch.float64), x.sum(0)]))
+        count = float(sums[0])
+        if count == 0:
+            return
+        mean = sums[1:] / count
+        var = self.sum_(((x - mean) ** 2).sum(0)) / count
+        normalizer.fold(mean, var, count)
+
+    def return_moments(
+        self, returns: torch.Tensor, advantages: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """All ranks' mean and mean square of the value targets, and mean square of the
+        advantages, each [C], from this rank's [B, C] (for the return scale)."""
+        r, a = returns.double(), advantages.double()
+        count = torch.tensor([float(r.shape[0])], dtype=torch.float64)
+        sums = self.sum_(torch.cat([count, r.sum(0), (r * r).sum(0), (a * a).sum(0)]))
+        mean, sq, adv_sq = (sums[1:] / sums[0]).reshape(3, r.shape[1])
+        return mean, sq, adv_sq
+
     def broadcast_modules(self, modules: dict[str, nn.Module]) -> None:
         """Overwrite every rank's parameters and buffers with rank 0's."""
         for module in modules.values():

@@ -1,5 +1,6 @@
 """The per-iteration metrics of :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer`
-(names in docs/moppo.md); ``trainer`` is the trainer whose rollout ``batch`` they describe."""
+(names in docs/moppo.md) and the episode bookkeeping they read; ``trainer`` is the trainer whose
+rollout ``batch`` they describe."""
 
 from __future__ import annotations
 
@@ -9,6 +10,36 @@ import numpy as np
 import torch
 
 from amorctl.plugins.backends.torch_cpu.batch import Batch
+
+
+@torch.no_grad()
+def record_episodes(
+    trainer: Any,
+    rewards: torch.Tensor,
+    weights: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+) -> None:
+    """Accumulate one step's undiscounted per-objective returns [N, m] (and ``r·w``) into the
+    trainer's running episode sums; move the episodes that ended into its recent-episode window."""
+    trainer.ep_return += rewards.double()
+    trainer.ep_scalar += (rewards * weights).sum(-1).double()
+    trainer.ep_length += 1
+    ended = terminated | truncated
+    k = int(ended.sum())
+    if k == 0:
+        return
+    window = trainer.recent_length.shape[0]
+    slots = (trainer.recent_ptr + torch.arange(k)) % window
+    trainer.recent_return[slots] = trainer.ep_return[ended]
+    trainer.recent_scalar[slots] = trainer.ep_scalar[ended]
+    trainer.recent_length[slots] = trainer.ep_length[ended].double()
+    trainer.recent_survived[slots] = (~terminated[ended]).double()
+    trainer.recent_ptr = int((trainer.recent_ptr + k) % window)
+    trainer.episodes += k
+    trainer.ep_return[ended] = 0.0
+    trainer.ep_scalar[ended] = 0.0
+    trainer.ep_length[ended] = 0
 
 
 def local_metrics(
@@ -32,20 +63,26 @@ def local_metrics(
     filled = ~torch.isnan(trainer.recent_length)
     has = bool(filled.any())
     mean_reward = batch.rewards.mean(dim=(0, 1))
+    returns, values = trainer.objective_view(batch.returns), trainer.objective_view(batch.values)
     for i, name in enumerate(trainer.names):
         metrics[f"return/{name}"] = float(trainer.recent_return[filled, i].mean()) if has else float("nan")
         metrics[f"reward/{name}"] = float(mean_reward[i])
-        ret, val = batch.returns[:, i], batch.values[:, i]
-        var = ret.var()
-        metrics[f"explained_variance/{name}"] = (
-            float(1 - (ret - val).var() / var) if var > 0 else float("nan")
-        )
+        metrics[f"explained_variance/{name}"] = _explained_variance(returns[:, i], values[:, i])
+    if len(trainer.channel_names) > len(trainer.names):  # survival_channel: the bonus's own critic
+        survival = _explained_variance(batch.returns[:, -1], batch.values[:, -1])
+        metrics["explained_variance/survival"] = survival
     metrics["return/scalarized"] = float(trainer.recent_scalar[filled].mean()) if has else float("nan")
     metrics["episode/length"] = float(trainer.recent_length[filled].mean()) if has else float("nan")
     metrics["episode/survival"] = float(trainer.recent_survived[filled].mean()) if has else float("nan")
     metrics["episodes"] = float(trainer.episodes)
     metrics.update(lever_metrics(trainer))
     return metrics
+
+
+def _explained_variance(returns: torch.Tensor, values: torch.Tensor) -> float:
+    """1 - Var(R - V) / Var(R) over a batch [B] (NaN when the returns are constant)."""
+    var = returns.var()
+    return float(1 - (returns - values).var() / var) if var > 0 else float("nan")
 
 
 def lever_metrics(trainer: Any) -> dict[str, float]:
@@ -55,7 +92,7 @@ def lever_metrics(trainer: Any) -> dict[str, float]:
     out: dict[str, float] = {}
     scale = trainer.return_scale
     if scale is not None:
-        stds = zip(trainer.names, scale.return_std(), scale.advantage_std(), strict=True)
+        stds = zip(trainer.channel_names, scale.return_std(), scale.advantage_std(), strict=True)
         for name, ret_std, adv_std in stds:
             out[f"return_scale/return_std/{name}"] = float(ret_std)
             out[f"return_scale/advantage_std/{name}"] = float(adv_std)
@@ -78,8 +115,8 @@ def reduced_metrics(trainer: Any, batch: Batch) -> dict[str, float]:
     assert trainer.replicas is not None and batch.returns is not None
     m = trainer.num_objectives
     filled = ~torch.isnan(trainer.recent_length)
-    ret, val = batch.returns.double(), batch.values.double()
-    res = ret - val
+    ret = trainer.objective_view(batch.returns).double()
+    res = ret - trainer.objective_view(batch.values).double()
     parts = [
         torch.tensor([float(filled.sum()), trainer.episodes, ret.shape[0]], dtype=torch.float64),
         trainer.recent_return[filled].sum(0),  # [m]
