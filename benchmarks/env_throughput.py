@@ -15,6 +15,11 @@ pin cores); figures are noisy on shared machines.
 
     python benchmarks/env_throughput.py [--characters humanoid36 biped20] [--envs 256 1024]
         [--clips synthetic|builtin] [--seconds 4] [--nthread 2] [--servo-models native python]
+        [--breakdown]
+
+``--breakdown`` prints, instead, where a step's time goes: the whole ``env.step`` against the
+bare rollout call of the same batch on the env's pool and on a 1-thread pool, and against the
+single-thread ``mj_step`` loop the bound uses (all in env steps/s, best of 15 alternating windows).
 """
 
 from __future__ import annotations
@@ -23,12 +28,13 @@ import argparse
 import time
 
 import mujoco
+import mujoco.rollout
 import numpy as np
 
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
-from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
+from amorctl.sim.batch_sim import CTRL_SPEC, STATE_SPEC, BatchSim
 from amorctl.sim.cpus import available_cpus
 
 
@@ -53,6 +59,42 @@ def single_thread_rate(env: TrackingEnv, samples: int = 128, repeats: int = 3) -
                 mujoco.mj_step(m, d)
             elapsed += time.perf_counter() - t0
         best = max(best, len(ids) * sim.substeps / elapsed)
+    return best
+
+
+def rollout_breakdown(env: TrackingEnv, lib: object, windows: int = 15, steps: int = 5) -> dict[str, float]:
+    """Where an env step's time goes, in env steps/s (best window of each, timed alternately in
+    one process): ``env`` (whole ``env.step``), ``rollout`` (the bare pool call of the same batch
+    and controls, ``nthread`` threads), ``rollout_1`` (the same on a 1-thread pool) and
+    ``single`` (the single-thread ``mj_step`` loop of the bound, per env step)."""
+    sim, n = env.sim, env.num_envs
+    pool_1 = mujoco.rollout.Rollout(nthread=1)
+    rng = np.random.default_rng(0)
+    best = dict.fromkeys(("env", "rollout", "rollout_1", "single"), 0.0)
+
+    def timed(key: str, fn: object, count: int) -> None:
+        t0 = time.perf_counter()
+        fn()  # type: ignore[operator]
+        best[key] = max(best[key], count / (time.perf_counter() - t0))
+
+    def env_steps() -> None:
+        for _ in range(steps):
+            env.step(lib.joint_pos[env.ref_idx + 1] + 0.05 * rng.standard_normal((n, env.action_dim)))  # type: ignore[attr-defined]
+
+    def pool_calls(pool: mujoco.rollout.Rollout, datas: list[mujoco.MjData]) -> None:
+        for _ in range(steps):
+            pool.rollout(
+                sim._models, datas, sim.state, sim.ctrl, control_spec=CTRL_SPEC, skip_checks=True,
+                nstep=sim.ctrl.shape[1], initial_warmstart=sim.warmstart, state=sim._out_state,
+                sensordata=sim._out_sens, chunk_size=sim._chunk,
+            )  # fmt: skip
+
+    for _ in range(windows):
+        timed("env", env_steps, steps * n)
+        timed("rollout", lambda: pool_calls(sim._pool, sim._datas), steps * n)
+        timed("rollout_1", lambda: pool_calls(pool_1, sim._datas[:1]), steps * n)
+        best["single"] = max(best["single"], single_thread_rate(env, samples=64, repeats=1) / sim.substeps)
+    pool_1.close()
     return best
 
 
@@ -148,6 +190,33 @@ def measure(
     return out
 
 
+def print_breakdown(character: str, num_envs: int, nthread: int, clips: str) -> None:
+    """One line of :func:`rollout_breakdown`'s rates and their ratios (the env's own servo model)."""
+    ch = get_registry().character(character)
+    if clips == "builtin":
+        from amorctl.motion.cache import default_dataset
+        from amorctl.motion.dataset import load_dataset
+
+        lib = load_dataset(default_dataset(character))
+    else:
+        lib = synthetic_library(ch, num_clips=4, seconds=4.0, seed=0)
+    env = TrackingEnv(ch, lib, num_envs=num_envs, nthread=nthread, seed=0, max_episode_steps=200)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(lib.joint_pos[env.ref_idx + 1])
+    r = rollout_breakdown(env, lib)
+    env.close()
+    print(
+        f"{character:<12} envs: {num_envs:5d}  env {r['env']:8.0f}  rollout ({nthread} threads) "
+        f"{r['rollout']:8.0f}  rollout (1 thread) {r['rollout_1']:8.0f}  mj_step loop {r['single']:8.0f}  "
+        f"env/rollout: {r['env'] / r['rollout']:.2f}  rollout/({nthread} x loop): "
+        f"{r['rollout'] / (nthread * r['single']):.2f}  "
+        f"1-thread rollout/loop: {r['rollout_1'] / r['single']:.2f}  "
+        f"threads: {r['rollout'] / r['rollout_1']:.2f}x",
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--characters", nargs="+", default=["humanoid36", "biped20"])
@@ -164,9 +233,16 @@ def main() -> None:
         "--servo-models", nargs="+", choices=["native", "python"], default=["native", "python"],
         help="servo implementations to measure for servo characters",
     )  # fmt: skip
+    parser.add_argument(
+        "--breakdown", action="store_true",
+        help="instead: where the step time goes (env vs bare rollout vs 1-thread rollout vs mj_step loop)",
+    )  # fmt: skip
     args = parser.parse_args()
     for character in args.characters:
         for n in args.envs:
+            if args.breakdown:
+                print_breakdown(character, n, args.nthread, args.clips)
+                continue
             results = measure(
                 character, n, args.nthread, args.seconds, args.clips, servo_models=tuple(args.servo_models)
             )

@@ -22,6 +22,8 @@ documents what it measured, and names the command for the rest):
 Usage:
   python benchmarks/science.py --budget-minutes 25 --character biped20 --preset science \\
       --out runs/science-biped20 [--only train,sweeps,...] [--skip-train] [--deadline 12:45]
+Lever experiments change one preset value per ``--set SECTION.KEY=VALUE`` (TOML value, repeatable;
+recorded in the report's rerun commands), e.g. ``--preset science_sc --set ppo.survival_weight=2``.
 Tiny smoke test: --budget-minutes 1 --sweep-episodes 2 --front-samples 16 --doc /tmp/s.md
 """
 
@@ -94,6 +96,7 @@ class Science:
             "run__checkpoint_every": a.checkpoint_every,
             "run__keep_checkpoints": 0,
             "run__threads": available_cpus(),
+            **a.set,
         }
         return override(load_preset(a.preset), **{**fields, **changes})
 
@@ -115,6 +118,7 @@ class Science:
         base = (
             f"python benchmarks/science.py --character {a.character} --preset {a.preset} "
             f"--budget-minutes {a.budget_minutes:g} --out {self.out}"
+            + "".join(f" --set {shlex.quote(t)}" for t in a.set_text)
         )
         self.results["meta"] = {
             "command": shlex.join([Path(sys.executable).name, *sys.argv]),
@@ -123,6 +127,7 @@ class Science:
             "machine": machine(),
             "character": a.character,
             "preset": a.preset,
+            "settings": a.set_text,
             "dataset": f"the {len(load_dataset(self.dataset).clips)} walking clips of the built-in set "
             f"(`walk`, `walker/*`)",
             "budget_minutes": a.budget_minutes,
@@ -143,11 +148,13 @@ class Science:
 
     def protocol(self) -> str:
         a = self.args
+        settings = (" with " + ", ".join(f"`{t}`" for t in a.set_text)) if a.set_text else ""
         return f"""## Protocol
 
-- **Training** (`train`): `{a.preset}` preset on the walking clips, {a.num_envs or "the preset's"} envs,
-  seed {a.seed}, one CPU thread per allowed core (the run is pinned with `taskset`); MOPPO samples
-  `w` per episode as the preset says; checkpoints every {a.checkpoint_every} iterations, all kept.
+- **Training** (`train`): `{a.preset}` preset{settings} on the walking clips,
+  {a.num_envs or "the preset's"} envs, seed {a.seed}, one CPU thread per allowed core (the run is
+  pinned with `taskset`); MOPPO samples `w` per episode as the preset says; checkpoints every
+  {a.checkpoint_every} iterations, all kept.
 - **Claim (ii)** (`sweeps`): for each objective k, `amorctl.analysis.sweeps.weight_sweep` (what
   `amorctl evaluate RUN --sweep k` reports): w_k at 0, .25, .5, .75, 1, the rest share 1 - w_k
   equally; {a.sweep_episodes} episodes of 10 s per level on the walking clips (seed {a.eval_seed}),
@@ -313,11 +320,35 @@ class Science:
 
 
 # ------------------------------------------------------------------------------------ main
+def config_setting(text: str) -> tuple[str, Any, str]:
+    """``--set section.key=value`` -> (``section__key``, the TOML value, ``text``): the key and
+    value as ``override`` takes them, and the text for the rerun commands."""
+    import tomllib
+
+    name, sep, value = text.partition("=")
+    section, dot, key = name.strip().partition(".")
+    if not sep or not dot or not section or not key:
+        raise argparse.ArgumentTypeError(f"expected SECTION.KEY=VALUE, got {text!r}")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: the value is not TOML ({exc})") from None
+    return f"{section}__{key}", parsed, text
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--budget-minutes", type=float, default=25.0, help="MOPPO training wall clock")
     p.add_argument("--character", choices=("biped20", "humanoid36"), default="biped20")
     p.add_argument("--preset", default="science")
+    p.add_argument(
+        "--set",
+        action="append",
+        type=config_setting,
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="change one config value of the preset (TOML value), e.g. ppo.survival_weight=2; repeatable",
+    )
     p.add_argument("--out", type=Path, default=None, help="default runs/science-<character>")
     p.add_argument(
         "--doc", type=Path, default=ROOT / "docs" / "science.md", help="report (figures in its img/)"
@@ -351,6 +382,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if bad:
         p.error(f"--only: unknown part(s) {', '.join(bad)}; parts: {', '.join(PARTS)}")
     args.parts = parts
+    args.set_text = [text for _, _, text in args.set]
+    args.set = {key: value for key, value, _ in args.set}
     return args
 
 

@@ -47,6 +47,28 @@ def test_survivors_rho_leaves_fallen_episodes_out() -> None:
     assert sm.survivors_rho(levels, returns, np.zeros_like(survived)) is None
 
 
+def test_set_options_reach_the_config_and_the_protocol(tmp_path) -> None:
+    import argparse
+
+    import science
+
+    argv = ["--out", str(tmp_path), "--doc", str(tmp_path / "s.md"), "--budget-minutes", "1"]
+    args = science.parse_args(
+        [*argv, "--preset", "science_sc", "--set", "ppo.survival_weight=2", "--set", "env.num_envs=64"]
+    )
+    assert args.set == {"ppo__survival_weight": 2, "env__num_envs": 64}
+    assert args.set_text == ["ppo.survival_weight=2", "env.num_envs=64"]
+    config = science.Science(args).base_config()
+    assert (config.ppo.survival_weight, config.env.num_envs, config.ppo.survival_channel) == (2.0, 64, True)
+    assert (
+        "`science_sc` preset with `ppo.survival_weight=2`, `env.num_envs=64`"
+        in science.Science(args).protocol()
+    )
+    for bad in ("ppo.survival_weight=", "survival_weight=2", "ppo.x=[1,"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            science.config_setting(bad)
+
+
 def test_step_pairs_skip_episode_ends_and_clip_switches() -> None:
     valid = np.array([[1, 1], [1, 1], [1, 1], [1, 0]], dtype=bool)
     episode = np.array([[0, 1], [0, 1], [0, 1], [0, -1]])

@@ -77,6 +77,7 @@ def test_split_and_fold_are_inverse_and_the_bonus_is_zero_on_the_terminating_ste
     torch.testing.assert_close(objective_values(channel_values(v, s)), v)
     w = torch.tensor([[0.25, 0.75, 0.0]])
     torch.testing.assert_close(channel_weights(w), torch.tensor([[0.25, 0.75, 0.0, 1.0]]))
+    torch.testing.assert_close(channel_weights(w, 2.5), torch.tensor([[0.25, 0.75, 0.0, 2.5]]))
 
 
 def test_split_leaves_the_scalarized_advantage_unchanged_without_advantage_scaling() -> None:
@@ -108,15 +109,18 @@ def test_split_leaves_the_scalarized_advantage_unchanged_without_advantage_scali
     assert float(batch.returns[:, -1][alive == 0].abs().max()) < float(batch.returns[:, -1].max())
 
 
-def test_advantage_scaling_scales_the_bonus_apart_from_the_objectives() -> None:
-    trainer = trainer_with({"survival_channel": True, "return_norm": "value+advantage"})
+@pytest.mark.parametrize("survival_weight", [1.0, 3.0])
+def test_advantage_scaling_scales_the_bonus_apart_from_the_objectives(survival_weight: float) -> None:
+    trainer = trainer_with(
+        {"survival_channel": True, "return_norm": "value+advantage", "survival_weight": survival_weight}
+    )
     batch, _ = trainer.collect_rollout()
     trainer.compute_returns(batch)
     assert trainer.return_scale is not None
     stds = trainer.return_scale.advantage_std()
     assert stds.shape == (3,)
     idx = torch.arange(batch.obs.shape[0])
-    raw = (batch.advantages / stds * channel_weights(batch.weights)).sum(-1)
+    raw = (batch.advantages / stds * channel_weights(batch.weights, survival_weight)).sum(-1)
     expected = (raw - raw.mean()) / (raw.std(correction=0) + 1e-8)
     torch.testing.assert_close(trainer.scalarized_advantage(batch, idx), expected)
     metrics = trainer.iteration()
@@ -147,3 +151,7 @@ def test_survival_channel_is_refused_without_a_shared_bonus_or_off_torch_cpu() -
         config(ppo__survival_channel=True)  # the toy env
     with pytest.raises(AmorError, match=r"\[ppo\] survival_channel = true needs run.backend = 'torch-cpu'"):
         config(env__kind="tracking", run__backend="jax-mjx", ppo__survival_channel=True)
+    with pytest.raises(AmorError, match=r"\[ppo\] survival_weight = 2 needs survival_channel = true"):
+        config(env__kind="tracking", ppo__survival_weight=2.0)
+    with pytest.raises(AmorError, match=r"survival_weight"):
+        config(env__kind="tracking", ppo__survival_channel=True, ppo__survival_weight=0.0)

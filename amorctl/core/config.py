@@ -170,7 +170,14 @@ class PPOConfig:
     survival_channel: bool = _doc(
         False,
         "false (the paper); true: the survival bonus shared by all objectives gets its own critic "
-        "and advantage channel (weight 1) instead of sitting inside every objective's",
+        "and advantage channel (weight survival_weight) instead of sitting inside every objective's",
+    )
+    survival_weight: float = _doc(
+        1.0,
+        "survival_channel: the bonus channel's weight in the scalarized advantage (1 = sum of w, "
+        "the same policy gradient as without the channel unless advantages are scaled)",
+        gt=0,
+        max=1000,
     )
 
 
@@ -372,6 +379,10 @@ def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             p.return_norm == "off" or torch_cpu,
             f"[ppo] return_norm = {p.return_norm!r} needs run.backend = 'torch-cpu' "
             f"(got {config.run.backend!r})",
+        ),
+        (
+            p.survival_weight == 1.0 or p.survival_channel,
+            f"[ppo] survival_weight = {p.survival_weight:g} needs survival_channel = true",
         ),
         (
             not p.survival_channel or (torch_cpu and config.env.kind == "tracking"),

@@ -388,7 +388,7 @@ class MOPPOTrainer:
             vector_adv = vector_adv / self.return_scale.advantage_std()
         weights = batch.weights[idx]
         if self.survival_critic is not None:
-            weights = channel_weights(weights)
+            weights = channel_weights(weights, self.cfg.survival_weight)
         adv = (vector_adv * weights).sum(-1)
         if self.replicas is None:
             return (adv - adv.mean()) / (adv.std(correction=0) + 1e-8)

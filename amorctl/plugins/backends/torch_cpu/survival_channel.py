@@ -6,10 +6,10 @@ not terminate (``RewardSpace.survival_bonus``). The bonus is the same in all m o
 against anything, yet it sits inside every objective's return and advantage, so it dominates
 their scales (and the per-objective advantage scaling of ``return_norm = "value+advantage"``).
 With the lever on, the trainer runs GAE and the value loss on m + 1 channels: the m objectives
-without the bonus, and the bonus alone, which is scalarized with weight 1. The policy gradient
-of ``A·w`` is unchanged by the split (GAE is linear); what changes is the critic's
-parameterization and, with per-objective advantage scaling, that each objective's advantage is
-scaled by its own spread instead of by the spread of falls.
+without the bonus, and the bonus alone, scalarized with weight ``[ppo] survival_weight``. At the
+default 1 the policy gradient of ``A·w`` is unchanged by the split (GAE is linear); what changes
+is the critic's parameterization and, with per-objective advantage scaling, that each objective's
+advantage is scaled by its own spread instead of by the spread of falls.
 
 Channel k < m is ``V_k - S`` and channel m is ``S`` (S: the survival critic's value), so the main
 critic still predicts each objective's whole value ``V_k`` (what the inference policy, coverage
@@ -38,6 +38,7 @@ def objective_values(channels: torch.Tensor) -> torch.Tensor:
     return channels[..., :-1] + channels[..., -1:]
 
 
-def channel_weights(weights: torch.Tensor) -> torch.Tensor:
-    """Episode weights [..., m] -> channel weights [..., m + 1] (the bonus has weight 1 = Σ w)."""
-    return torch.cat([weights, torch.ones_like(weights[..., :1])], dim=-1)
+def channel_weights(weights: torch.Tensor, survival_weight: float = 1.0) -> torch.Tensor:
+    """Episode weights [..., m] -> channel weights [..., m + 1]: the bonus's weight is
+    ``survival_weight`` (1 = Σ w, which leaves ``A·w`` as it was without the split)."""
+    return torch.cat([weights, torch.full_like(weights[..., :1], survival_weight)], dim=-1)
