@@ -34,7 +34,7 @@ import numpy as np
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.envs.tracking_env import TrackingEnv
 from amorctl.registry import get_registry
-from amorctl.sim.batch_sim import CTRL_SPEC, STATE_SPEC, BatchSim
+from amorctl.sim.batch_sim import STATE_SPEC, BatchSim
 from amorctl.sim.cpus import available_cpus
 
 
@@ -81,17 +81,13 @@ def rollout_breakdown(env: TrackingEnv, lib: object, windows: int = 15, steps: i
         for _ in range(steps):
             env.step(lib.joint_pos[env.ref_idx + 1] + 0.05 * rng.standard_normal((n, env.action_dim)))  # type: ignore[attr-defined]
 
-    def pool_calls(pool: mujoco.rollout.Rollout, datas: list[mujoco.MjData]) -> None:
+    def pool_calls(pool: mujoco.rollout.Rollout | None, datas: list[mujoco.MjData] | None) -> None:
         for _ in range(steps):
-            pool.rollout(
-                sim._models, datas, sim.state, sim.ctrl, control_spec=CTRL_SPEC, skip_checks=True,
-                nstep=sim.ctrl.shape[1], initial_warmstart=sim.warmstart, state=sim._out_state,
-                sensordata=sim._out_sens, chunk_size=sim._chunk,
-            )  # fmt: skip
+            sim._rollout(sim.ctrl.shape[1], pool, datas)  # the env's own call, state not advanced
 
     for _ in range(windows):
         timed("env", env_steps, steps * n)
-        timed("rollout", lambda: pool_calls(sim._pool, sim._datas), steps * n)
+        timed("rollout", lambda: pool_calls(None, None), steps * n)
         timed("rollout_1", lambda: pool_calls(pool_1, sim._datas[:1]), steps * n)
         best["single"] = max(best["single"], single_thread_rate(env, samples=64, repeats=1) / sim.substeps)
     pool_1.close()

@@ -353,10 +353,14 @@ class BatchSim:
 
     # --- stepping -------------------------------------------------------------------------------
 
-    def _rollout(self, nstep: int) -> None:
-        self._pool.rollout(
+    def _rollout(
+        self, nstep: int, pool: mujoco.rollout.Rollout | None = None, datas: list[mujoco.MjData] | None = None
+    ) -> None:
+        """``nstep`` physics steps of every env on the env's pool (or on ``pool`` with its
+        ``datas``, one per thread: benchmarks time other pool sizes on the same batch)."""
+        (self._pool if pool is None else pool).rollout(
             self._models,
-            self._datas,
+            self._datas if datas is None else datas,
             self.state,
             self.ctrl,
             control_spec=CTRL_SPEC,

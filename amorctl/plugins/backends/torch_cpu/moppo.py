@@ -109,7 +109,7 @@ class MOPPOTrainer:
             self.survival_critic = (
                 Critic(env.obs_dim, 1, network.critic_hidden) if ppo.survival_channel else None
             )
-        self.survival_bonus = float(getattr(env.reward_space, "survival_bonus", 0.0))
+        self.survival_bonus = float(env.reward_space.survival_bonus)
         if self.survival_critic is not None and not self.survival_bonus > 0:
             raise AmorError(
                 "[ppo] survival_channel = true needs objectives that share a survival bonus "
@@ -190,11 +190,11 @@ class MOPPOTrainer:
             mean = self.actor(x)
             values = self.critic(x) if critic else None
             survival = self.survival_critic(x) if critic and self.survival_critic is not None else None
-        if values is None:
-            return mean.float(), None
-        if survival is None:
-            return mean.float(), values.float()
-        return mean.float(), channel_values(values.float(), survival.float())  # V - S in float32
+        if values is not None:
+            values = values.float()
+            if survival is not None:  # V - S in float32
+                values = channel_values(values, survival.float())
+        return mean.float(), values
 
     def objective_view(self, channels: torch.Tensor) -> torch.Tensor:
         """Channel quantities [..., C] -> per-objective ones [..., m] (values, returns)."""
@@ -380,8 +380,8 @@ class MOPPOTrainer:
     def scalarized_advantage(self, batch: Batch, idx: torch.Tensor) -> torch.Tensor:
         """The policy's advantage [k] of the samples ``idx``: each sample's vector advantage
         scalarized with its own weights (``A·w``, or ``(A / s)·w`` with ``return_norm =
-        "value+advantage"``; the survival channel has weight 1), then normalized with the
-        minibatch's (all ranks') mean and std."""
+        "value+advantage"``; the survival channel has weight ``survival_weight``), then normalized
+        with the minibatch's (all ranks') mean and std."""
         assert batch.advantages is not None, "call compute_returns first"
         vector_adv = batch.advantages[idx]
         if self.return_scale is not None and self.return_scale.advantage:
