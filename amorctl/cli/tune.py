@@ -110,6 +110,10 @@ def tune(
             run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, data, live, host, port,
             save_to, out, plot, video, json_,
         )  # fmt: skip
+        if live:
+            from amorctl.tune.live import end_live_process
+
+            end_live_process()
         return
     if scale is not None:
         raise AmorError("--scale edits the weights an HLP chose; it needs --hlp")
@@ -121,13 +125,14 @@ def tune(
     try:
         w0 = parse_weights(weights, tenv.names, source="--weights") if weights is not None else None
         if live:
-            from amorctl.tune.live import LiveSession, serve_live
+            from amorctl.tune.live import LiveSession, end_live_process, serve_live
 
             session = LiveSession(tenv, w0, save_to=save_to)
             serve_live(
                 session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
             )
-            return
+            tenv.close()
+            end_live_process()
         sched = None
         if schedule is not None:
             sched = load_schedule(schedule, tenv.names, tenv.motions or None)
