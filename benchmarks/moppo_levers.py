@@ -3,7 +3,7 @@
 Protocol: every variant continues the same trained run (``--base``, e.g. the quick-preset biped20
 walking run ``runs/b20walk``) from its newest checkpoint for the same number of iterations, with
 only the lever changed, and is then evaluated with ``evaluate --sweep`` for each objective
-(:func:`amorctl.analysis.sweeps.weight_sweep`: levels 0, .25, .5, .75, 1, the other objectives
+(:func:`amorctl.analysis.level_sweep.weight_sweep`: levels 0, .25, .5, .75, 1, the other objectives
 sharing the rest, deterministic policy, 10 s episodes from the clips' first frames). The
 ``paper`` variant (no lever) continues the run the same way, so the comparison isolates the lever
 from the extra training. A lever whose state the base checkpoint lacks (the return scale, the
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.analysis.sweeps import weight_sweep
+from amorctl.analysis.level_sweep import weight_sweep
 from amorctl.core.config import merge, to_toml
 from amorctl.core.contracts import Snapshot
 from amorctl.core.files import atomic_write_text

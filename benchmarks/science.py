@@ -155,7 +155,7 @@ class Science:
   {a.num_envs or "the preset's"} envs, seed {a.seed}, one CPU thread per allowed core (the run is
   pinned with `taskset`); MOPPO samples `w` per episode as the preset says; checkpoints every
   {a.checkpoint_every} iterations, all kept.
-- **Claim (ii)** (`sweeps`): for each objective k, `amorctl.analysis.sweeps.weight_sweep` (what
+- **Claim (ii)** (`sweeps`): for each objective k, `amorctl.analysis.level_sweep.weight_sweep` (what
   `amorctl evaluate RUN --sweep k` reports): w_k at 0, .25, .5, .75, 1, the rest share 1 - w_k
   equally; {a.sweep_episodes} episodes of 10 s per level on the walking clips (seed {a.eval_seed}),
   deterministic policy. Level means of the unweighted return of k; monotonic = every level's mean

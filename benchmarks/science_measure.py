@@ -12,18 +12,13 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from science_report import (
-    hv_reference,
-    level_stats,
-    smoothness_by_level,
-    smoothness_per_env,
-    step_pairs,
-)
+from science_report import hv_reference, level_stats
 
 from amorctl.analysis.eval_env import close_env, episode_limit, make_eval_env, sweep_weights
 from amorctl.analysis.front import hypervolume, non_dominated_fraction
+from amorctl.analysis.level_sweep import weight_sweep
 from amorctl.analysis.rollout import rollout
-from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, pareto_sweep, sweep_levels_weights, weight_sweep
+from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, pareto_sweep
 from amorctl.analysis.tracking_metrics import evaluate_setting
 from amorctl.core.config import TrainConfig
 from amorctl.core.weights import format_weights, parse_weights
@@ -60,9 +55,8 @@ def measure_sweeps(
     seed: int,
     levels: Sequence[float] = DEFAULT_SWEEP_LEVELS,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Claim (ii): ``weight_sweep`` (what ``evaluate --sweep`` reports) for every objective, plus
-    the smooth sweep's action rate and joint-velocity RMS from a recorded rollout on the same
-    envs, seed and weights (so the same episodes).
+    """Claim (ii): ``weight_sweep`` (what ``evaluate --sweep`` reports) for every objective, with
+    the smooth sweep's action rate and joint-velocity RMS on the same episodes.
 
     Returns:
         (results dict, {objective: returns [L, E]} for the figure).
@@ -71,8 +65,11 @@ def measure_sweeps(
     names = tuple(policy.objectives)
     out: dict[str, Any] = {}
     raw: dict[str, np.ndarray] = {}
+    smooth_sweeps: list[dict[str, Any]] = []
     for name in names:
         ws = weight_sweep(policy, config, name, levels=levels, episodes=episodes, seed=seed)
+        if name == "smooth" and ws.motion is not None:  # the same episodes' action rate, joint speed
+            smooth_sweeps.append(ws.motion.to_dict())
         stats = level_stats(ws.levels, ws.returns, ws.survival)
         stats["spearman_rho"] = None if np.isnan(ws.spearman_rho) else float(ws.spearman_rho)
         stats["spearman_p"] = None if np.isnan(ws.spearman_p) else float(ws.spearman_p)
@@ -92,8 +89,8 @@ def measure_sweeps(
         "seed": seed,
         "objectives": out,
     }
-    if "smooth" in names:
-        result["smooth_motion"] = smooth_motion(policy, config, names.index("smooth"), levels, episodes, seed)
+    if smooth_sweeps:
+        result["smooth_motion"] = smooth_sweeps[0]
         sm = result["smooth_motion"]
         print(
             f"  smooth sweep: action rate {' '.join(f'{v:.4g}' for v in sm['action_rate'])} "
@@ -103,24 +100,6 @@ def measure_sweeps(
         )
     result["seconds"] = time.perf_counter() - began
     return result, raw
-
-
-def smooth_motion(
-    policy: Any, config: TrainConfig, index: int, levels: Sequence[float], episodes: int, seed: int
-) -> dict[str, Any]:
-    """Action rate and joint-velocity RMS per level of a sweep of objective ``index`` (the env
-    layout and seed of :func:`amorctl.analysis.sweeps.weight_sweep`, with the steps recorded)."""
-    w = sweep_levels_weights(index, len(policy.objectives), levels)
-    n = w.shape[0] * episodes
-    env, _ = make_eval_env(config, n, seed=seed)
-    try:
-        ro = rollout(policy, env, np.repeat(w, episodes, axis=0), episodes=1, seed=seed, record_steps=True)
-    finally:
-        close_env(env)
-    pairs = step_pairs(ro.valid, ro.episode_id, ro.frame_index)
-    residual = config.env.action_mode == "residual"
-    rate, vel2 = smoothness_per_env(ro.actions, ro.joint_pos, ro.ref_joint_pos, pairs, ro.dt, residual)
-    return smoothness_by_level(rate, vel2, pairs.sum(axis=0), w.shape[0], ro.joint_pos.shape[-1])
 
 
 def measure_front(

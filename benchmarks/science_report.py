@@ -62,67 +62,6 @@ def sweep_passes(stats: dict[str, Any]) -> bool:
     )
 
 
-def step_pairs(valid: np.ndarray, episode_id: np.ndarray, frame_index: np.ndarray | None) -> np.ndarray:
-    """[T, N] bool: step t and step t-1 belong to the same counted episode and the reference
-    advanced by one frame between them (no clip switch), so a finite difference is meaningful.
-    Row 0 is all False."""
-    ok = np.zeros(valid.shape, dtype=bool)
-    same = valid[1:] & valid[:-1] & (episode_id[1:] == episode_id[:-1]) & (episode_id[1:] >= 0)
-    if frame_index is not None:
-        same &= frame_index[1:] == frame_index[:-1] + 1
-    ok[1:] = same
-    return ok
-
-
-def smoothness_per_env(
-    actions: np.ndarray,
-    joint_pos: np.ndarray,
-    ref_joint_pos: np.ndarray | None,
-    pairs: np.ndarray,
-    dt: float,
-    residual: bool,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Action rate and joint-velocity square sums per env, over the step pairs of :func:`step_pairs`.
-
-    The PD target sent at step t is ``q*_t = ref_t + a_t`` (residual actions) or ``a_t``
-    (absolute); the action rate is ``||q*_t - q*_{t-1}||^2`` (rad^2, summed over joints), the
-    quantity ``tracking7``'s action-rate term penalizes; joint velocity is ``(q_t - q_{t-1}) / dt``.
-
-    Args:
-        actions: [T, N, J]; joint_pos, ref_joint_pos: [T, N, J] rad; pairs: [T, N] bool.
-
-    Returns:
-        (action-rate sum [N], joint-velocity squared sum [N] over pairs and joints), and the pair
-        count is ``pairs.sum(0)`` (the caller divides; joints: J).
-    """
-    target = actions + ref_joint_pos if (residual and ref_joint_pos is not None) else actions
-    d_target = np.zeros(actions.shape[:2])
-    d_target[1:] = ((target[1:] - target[:-1]) ** 2).sum(axis=-1)
-    vel2 = np.zeros(actions.shape[:2])
-    vel2[1:] = (((joint_pos[1:] - joint_pos[:-1]) / dt) ** 2).sum(axis=-1)
-    return np.where(pairs, d_target, 0.0).sum(axis=0), np.where(pairs, vel2, 0.0).sum(axis=0)
-
-
-def smoothness_by_level(
-    rate_sum: np.ndarray, vel2_sum: np.ndarray, pair_count: np.ndarray, levels: int, joints: int
-) -> dict[str, Any]:
-    """Per level (envs laid out level-major, E per level): mean action rate per step (rad^2) and
-    joint-velocity RMS (rad/s) over all pairs of the level's envs; whether both fall monotonically."""
-    r = np.asarray(rate_sum).reshape(levels, -1).sum(axis=1)
-    v = np.asarray(vel2_sum).reshape(levels, -1).sum(axis=1)
-    c = np.asarray(pair_count).reshape(levels, -1).sum(axis=1).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rate = r / c
-        rms = np.sqrt(v / (c * joints))
-    return {
-        "action_rate": [float(x) for x in rate],
-        "joint_vel_rms": [float(x) for x in rms],
-        "pairs": [int(x) for x in c],
-        "action_rate_falls": bool(np.all(np.diff(rate) < 0)),
-        "joint_vel_rms_falls": bool(np.all(np.diff(rms) < 0)),
-    }
-
-
 def corner_heavy_weights(m: int, heavy: float = 0.7) -> np.ndarray:
     """[m, m]: row k puts ``heavy`` on objective k and shares ``1 - heavy`` equally among the rest."""
     w = np.full((m, m), (1.0 - heavy) / (m - 1))

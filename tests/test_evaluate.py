@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from amorctl.analysis.front import hypervolume
+from amorctl.analysis.level_sweep import sweep_levels_weights, weight_sweep
 from amorctl.analysis.rollout import Episodes, Rollout, rollout
 from amorctl.analysis.schemas import EVALUATE_JSON_SCHEMA, PARETO_JSON_SCHEMA
-from amorctl.analysis.sweeps import parse_reference_point, sweep_levels_weights, weight_sweep
+from amorctl.analysis.sweeps import parse_reference_point
 from amorctl.analysis.tracking_metrics import tracking_metrics
 from amorctl.cli.main import main
 from amorctl.core.errors import AmorError
@@ -252,6 +253,10 @@ def test_evaluate_cli_compare_and_sweep_on_toy(toy_run: Path, tmp_path: Path, ca
     assert by["weights"]["joint_mae_deg"] is None  # no reference motion in the toy env
     assert doc["sweep"]["spearman_rho"] > 0.5
     assert Path(doc["sweep"]["figure"]).read_bytes()[:4] == b"\x89PNG"
+    levels = len(doc["sweep"]["levels"])
+    assert doc["sweep"]["joint_vel_rms"] is None  # the toy env has no joints
+    assert len(doc["sweep"]["action_rate"]) == levels and all(r > 0 for r in doc["sweep"]["action_rate"])
+    assert all(n > 0 for n in doc["sweep"]["step_pairs"])
 
 
 # ---------------------------------------------------------------------------- tracking run
@@ -279,6 +284,19 @@ def test_evaluate_tracking_metrics_per_motion_and_pareto_colours(
     _validate(doc, PARETO_JSON_SCHEMA)
     assert [g["motion"] for g in doc["motions"]] == ["sway_a", "sway_b"]
     assert len(doc["motions"][0]["pairwise_non_dominated"]) == 21  # 7 objectives: 21 panels
+
+
+def test_tracking_sweep_reports_action_rate_and_joint_velocity_per_level(tracking_run: Path, capsys) -> None:
+    code, stdout, err = run_cli(
+        capsys, "evaluate", str(tracking_run), "--sweep", "smooth", "--levels", "0,0.5,1",
+        "--episodes", "2", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    sweep = json.loads(stdout)["sweep"]
+    assert len(sweep["action_rate"]) == len(sweep["joint_vel_rms"]) == len(sweep["step_pairs"]) == 3
+    assert all(0 < r < 10 for r in sweep["action_rate"])  # rad² per step, summed over 20 joints
+    assert all(0 < v < 50 for v in sweep["joint_vel_rms"])  # rad/s
+    assert all(n > 0 for n in sweep["step_pairs"])
 
 
 def test_video_decodes_with_expected_frames_and_is_not_blank(

@@ -69,34 +69,6 @@ def test_set_options_reach_the_config_and_the_protocol(tmp_path) -> None:
             science.config_setting(bad)
 
 
-def test_step_pairs_skip_episode_ends_and_clip_switches() -> None:
-    valid = np.array([[1, 1], [1, 1], [1, 1], [1, 0]], dtype=bool)
-    episode = np.array([[0, 1], [0, 1], [0, 1], [0, -1]])
-    frames = np.array([[5, 9], [6, 10], [20, 11], [21, 12]])  # env 0 switches clip at t = 2
-    pairs = sr.step_pairs(valid, episode, frames)
-    assert pairs.tolist() == [[False, False], [True, True], [False, True], [True, False]]
-
-
-def test_smoothness_uses_pd_targets_and_finite_differences() -> None:
-    t, n, j = 3, 2, 2
-    actions = np.zeros((t, n, j))
-    actions[1, 0] = [0.1, 0.0]  # env 0: action jumps by 0.1 on one joint at t = 1
-    ref = np.zeros((t, n, j))
-    ref[:, 1, 0] = [0.0, 0.2, 0.4]  # env 1: the reference moves: residual targets move with it
-    q = np.zeros((t, n, j))
-    q[:, 0, 1] = [0.0, 0.02, 0.04]  # env 0: 0.02 rad per 0.02 s = 1 rad/s on one joint
-    pairs = np.array([[False, False], [True, True], [True, True]])
-    rate, vel2 = sr.smoothness_per_env(actions, q, ref, pairs, 0.02, residual=True)
-    assert rate == pytest.approx([0.01 + 0.01, 0.04 + 0.04])
-    assert vel2 == pytest.approx([2.0, 0.0])
-    absolute, _ = sr.smoothness_per_env(actions, q, ref, pairs, 0.02, residual=False)
-    assert absolute == pytest.approx([0.02, 0.0])
-    by = sr.smoothness_by_level(rate, vel2, pairs.sum(0), levels=2, joints=j)
-    assert by["action_rate"] == pytest.approx([0.01, 0.04])
-    assert by["joint_vel_rms"] == pytest.approx([np.sqrt(2.0 / 4), 0.0])
-    assert by["action_rate_falls"] is False and by["joint_vel_rms_falls"] is True
-
-
 def test_weights_reference_and_iterations() -> None:
     w = sr.corner_heavy_weights(7, 0.7)
     assert np.allclose(w.sum(1), 1) and np.allclose(np.diag(w), 0.7) and np.isclose(w[0, 1], 0.05)

@@ -165,7 +165,8 @@ EVALUATE_JSON_SCHEMA: dict[str, Any] = {
                     "type": "object",
                     "required": [
                         "objective", "levels", "returns", "mean", "survival", "spearman_rho", "spearman_p",
-                        "figure",
+                        "action_rate", "joint_vel_rms", "step_pairs", "action_rate_falls",
+                        "joint_vel_rms_falls", "figure",
                     ],
                     "properties": {
                         "objective": {"type": "string"},
@@ -175,6 +176,18 @@ EVALUATE_JSON_SCHEMA: dict[str, Any] = {
                         "survival": _VECTOR,
                         "spearman_rho": _NUM_OR_NULL,
                         "spearman_p": _NUM_OR_NULL,
+                        "action_rate": {
+                            "type": "array",
+                            "items": _NUM_OR_NULL,
+                            "description": "[L] mean per step of ||q*_t - q*_(t-1)||², the PD targets",
+                        },
+                        "joint_vel_rms": {
+                            "oneOf": [{"type": "null"}, {"type": "array", "items": _NUM_OR_NULL}],
+                            "description": "[L] joint-velocity RMS, rad/s (null: the env has no joints)",
+                        },
+                        "step_pairs": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+                        "action_rate_falls": {"type": "boolean"},
+                        "joint_vel_rms_falls": {"oneOf": [{"type": "null"}, {"type": "boolean"}]},
                         "figure": {"type": "string"},
                     },
                 },

@@ -1,7 +1,7 @@
 """Sweeps split across the ranks of a ``torchrun`` launch, gathered at rank 0.
 
 ``amorctl pareto`` and ``amorctl evaluate --sweep`` under torchrun call these instead of
-:func:`~amorctl.analysis.sweeps.pareto_sweep` / :func:`~amorctl.analysis.sweeps.weight_sweep`.
+:func:`~amorctl.analysis.sweeps.pareto_sweep` / :func:`~amorctl.analysis.level_sweep.weight_sweep`.
 Each rank evaluates its share in its own batched rollout with the sweep's ``seed`` and the global
 indices of its rows (every episode is seeded by ``seed`` and its own key, never its position in a
 batch: :func:`~amorctl.analysis.eval_env.episode_seeds`), and rank 0 puts the per-row results
@@ -20,21 +20,16 @@ the torch-cpu backend; what can differ in the last bits elsewhere).
 from __future__ import annotations
 
 import dataclasses
-import math
+import functools
+import operator
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from amorctl.analysis.front import HypervolumeMethod, summarize_fronts
-from amorctl.analysis.sweeps import (
-    DEFAULT_SWEEP_LEVELS,
-    ParetoGroup,
-    ParetoSweep,
-    WeightSweep,
-    pareto_sweep,
-    weight_sweep,
-)
+from amorctl.analysis.level_sweep import WeightSweep, level_spearman, weight_sweep
+from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, ParetoGroup, ParetoSweep, pareto_sweep
 from amorctl.core.config import TrainConfig
 from amorctl.core.errors import AmorError
 from amorctl.train.distributed import World, current, rank_rows
@@ -117,7 +112,7 @@ def weight_sweep_ranks(
     world: World | None = None,
     **options: Any,
 ) -> WeightSweep | None:
-    """:func:`~amorctl.analysis.sweeps.weight_sweep` with the episodes per level split over ranks.
+    """:func:`~amorctl.analysis.level_sweep.weight_sweep` with the episodes per level split over ranks.
 
     Returns the whole sweep at rank 0, None on the other ranks (``options``: ``motions``,
     ``on_step``).
@@ -125,8 +120,6 @@ def weight_sweep_ranks(
     Raises:
         AmorError: fewer episodes than ranks, or what ``weight_sweep`` raises (on every rank).
     """
-    from scipy import stats
-
     world = world or current()
     if not world.distributed:
         return weight_sweep(policy, config, objective, levels=levels, episodes=episodes, seed=seed, **options)
@@ -140,16 +133,11 @@ def weight_sweep_ranks(
         part = weight_sweep(
             policy, config, objective, levels=levels, episodes=mine, seed=seed, episode_ids=ids, **options
         )
-    parts = world.gather((part.returns, part.survival * mine, mine))
+    parts = world.gather((part.returns, part.survival * mine, mine, part.motion))
     if parts is None:
         return None
     returns = np.concatenate([p[0] for p in parts], axis=1)  # [L, E]
     survival = sum(p[1] for p in parts) / episodes
-    level_of = np.repeat(part.levels, episodes)
-    flat = returns.ravel()
-    ok = np.isfinite(flat)
-    rho, p_value = math.nan, math.nan
-    if ok.sum() >= 3 and np.ptp(flat[ok]) > 0:
-        res = stats.spearmanr(level_of[ok], flat[ok])
-        rho, p_value = float(res.statistic), float(res.pvalue)
-    return WeightSweep(part.objective, part.levels, returns, survival, rho, p_value)
+    motion = None if part.motion is None else functools.reduce(operator.add, (p[3] for p in parts))
+    rho, p_value = level_spearman(part.levels, returns)
+    return WeightSweep(part.objective, part.levels, returns, survival, rho, p_value, motion=motion)

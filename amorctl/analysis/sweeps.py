@@ -1,5 +1,6 @@
 """Sweeps over weights in one batched rollout each: Pareto fronts (``amorctl pareto``, the paper's
-Fig. 4) and one objective's weight against its return (``evaluate --sweep``, Fig. 6).
+Fig. 4); one objective's weight against its return (``evaluate --sweep``, Fig. 6) is in
+:mod:`amorctl.analysis.level_sweep`.
 
 A sweep over K weight vectors is one :func:`amorctl.analysis.rollout.rollout` with one weight
 vector per environment. Every episode's env is seeded from ``seed`` and the episode's key (motion
@@ -27,7 +28,6 @@ import numpy as np
 from amorctl.analysis.eval_env import (
     ALL_MOTIONS,
     Progress,
-    check_objective,
     close_env,
     episode_limit,
     episode_seeds,
@@ -259,13 +259,13 @@ def _fronts(
     return out
 
 
-def _floats(a: np.ndarray) -> list[Any]:
+def floats(a: np.ndarray) -> list[Any]:
     """A JSON-ready nested list (NaN/inf become None)."""
     arr = np.asarray(a, dtype=np.float64)
     if arr.ndim == 0:
         v = float(arr)
         return v if math.isfinite(v) else None  # type: ignore[return-value]
-    return [_floats(x) for x in arr]
+    return [floats(x) for x in arr]
 
 
 def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> dict[str, Any]:
@@ -277,10 +277,10 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
         groups.append(
             {
                 "motion": grp.motion,
-                "points": _floats(grp.points),
-                "points_std": _floats(grp.points_std),
-                "survival": _floats(grp.survival),
-                "equal_weights_point": _floats(grp.equal_point),
+                "points": floats(grp.points),
+                "points_std": floats(grp.points_std),
+                "survival": floats(grp.survival),
+                "equal_weights_point": floats(grp.equal_point),
                 "non_dominated": [bool(v) for v in s.non_dominated],
                 "pairwise_non_dominated": {
                     f"{names[i]}/{names[j]}": [bool(v) for v in mask] for (i, j), mask in s.pairwise.items()
@@ -294,7 +294,7 @@ def pareto_to_dict(sweep: ParetoSweep, files: dict[str, str] | None = None) -> d
         )
     return {
         "objectives": list(names),
-        "weights": _floats(sweep.weights),
+        "weights": floats(sweep.weights),
         "sampling": sweep.sampling,
         "samples": int(sweep.weights.shape[0]),
         "episodes": sweep.episodes,
@@ -352,117 +352,6 @@ def pareto_csv(sweep: ParetoSweep) -> str:
             + [""] * (m + 1)
         )
     return buf.getvalue()
-
-
-# ---------------------------------------------------------------------------- weight sweep (Fig. 6)
-@dataclass
-class WeightSweep:
-    """Returns of one objective at several levels of its weight (the paper's Fig. 6).
-
-    Attributes:
-        objective: the swept objective's name.
-        levels: [L] its weight at each level (the others share ``1 - level`` equally).
-        returns: [L, E] its unweighted cumulative reward per episode.
-        survival: [L] survival rate per level; survived: [L, E] bool per episode (None: not kept).
-        spearman_rho, spearman_p: rank correlation between weight and return over all L * E
-            episodes, and its p-value (NaN when undefined, e.g. all returns equal).
-    """
-
-    objective: str
-    levels: np.ndarray
-    returns: np.ndarray
-    survival: np.ndarray
-    spearman_rho: float
-    spearman_p: float
-    survived: np.ndarray | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "objective": self.objective,
-            "levels": _floats(self.levels),
-            "returns": _floats(self.returns),
-            "mean": _floats(np.nanmean(self.returns, axis=1)),
-            "survival": _floats(self.survival),
-            "spearman_rho": _floats(np.float64(self.spearman_rho)),
-            "spearman_p": _floats(np.float64(self.spearman_p)),
-        }
-
-
-def sweep_levels_weights(index: int, m: int, levels: Sequence[float]) -> np.ndarray:
-    """[L, m]: weight ``level`` on objective ``index``, the rest shared equally by the others."""
-    lv = np.asarray(levels, dtype=np.float64)
-    if lv.ndim != 1 or len(lv) < 3:
-        raise AmorError(f"a sweep needs at least 3 levels, got {list(np.atleast_1d(lv))}")
-    if ((lv < 0) | (lv > 1)).any() or not np.isfinite(lv).all():
-        raise AmorError(f"sweep levels must lie in [0, 1], got {lv.tolist()}")
-    if m == 1:
-        raise AmorError("a weight sweep needs at least 2 objectives")
-    w = np.repeat(((1.0 - lv) / (m - 1))[:, None], m, axis=1)
-    w[:, index] = lv
-    return w
-
-
-def weight_sweep(
-    policy: Any,
-    config: TrainConfig,
-    objective: str,
-    *,
-    levels: Sequence[float] = DEFAULT_SWEEP_LEVELS,
-    motions: Sequence[str] | None = None,
-    episodes: int = 16,
-    seed: int = 0,
-    on_step: Progress | None = None,
-    episode_ids: np.ndarray | None = None,
-) -> WeightSweep:
-    """Sweep one objective's weight over ``levels`` in one batched rollout (L * E envs).
-
-    Env ``l * E + e`` runs level l's episode e, seeded by ``seed`` and ``(l, episode_ids[e])``
-    (default ``episode_ids``: ``0 .. E-1``; a block of a larger sweep passes its indices).
-
-    Raises:
-        AmorError: unknown objective, fewer than 3 levels, episodes < 1, unknown motion.
-    """
-    from scipy import stats
-
-    if episodes < 1:
-        raise AmorError(f"--episodes must be >= 1, got {episodes}")
-    names = tuple(policy.objectives)
-    idx = check_objective(objective, names)
-    w = sweep_levels_weights(idx, len(names), levels)
-    n_lv = w.shape[0]
-    n = n_lv * episodes
-    ids = np.arange(episodes) if episode_ids is None else np.asarray(episode_ids, dtype=np.int64).reshape(-1)
-    if ids.shape != (episodes,):
-        raise AmorError(f"episode_ids: need {episodes} indices, got {ids.size}")
-    grid = np.meshgrid(np.arange(n_lv), ids, indexing="ij")
-    env_seeds = episode_seeds(seed, np.stack(grid, axis=-1).reshape(n, 2))
-    env, _ = make_eval_env(config, n, motions=motions, seed=seed)
-    try:
-        ro = rollout(
-            fixed_shape_policy(policy),
-            env,
-            np.repeat(w, episodes, axis=0),
-            episodes=1,
-            seed=env_seeds,
-            record_steps=False,
-            on_step=on_step,
-        )
-    finally:
-        close_env(env)
-    eps = ro.episodes
-    returns = np.full(n, np.nan)
-    returns[eps.env] = eps.returns[:, idx]
-    survived = np.zeros(n)
-    survived[eps.env] = eps.survived
-    returns = returns.reshape(n_lv, episodes)
-    level_of = np.repeat(w[:, idx], episodes)
-    ok = np.isfinite(returns.ravel())
-    rho, p = math.nan, math.nan
-    if ok.sum() >= 3 and np.ptp(returns.ravel()[ok]) > 0:
-        res = stats.spearmanr(level_of[ok], returns.ravel()[ok])
-        rho, p = float(res.statistic), float(res.pvalue)
-    kept = survived.reshape(n_lv, episodes) > 0.5
-    return WeightSweep(objective, w[:, idx], returns, kept.mean(axis=1), rho, p, kept)
 
 
 def parse_reference_point(text: str, names: Sequence[str]) -> np.ndarray:

@@ -12,7 +12,8 @@ MO-Gymnasium env does) into an :class:`~amorctl.core.vecenv.VectorEnv`:
   truncated episodes (``TimeLimit``) can be bootstrapped.
 
 Copies are stepped in a Python loop, which is fine for benchmark-sized tasks. Objective names come
-from the env's ``reward_names`` attribute if it has one, else ``r0, r1, ...``.
+from the env's ``reward_names`` attribute if it has one, else from :data:`KNOWN_REWARD_NAMES`
+(MO-Gymnasium documents its reward vectors but does not name them), else ``r0, r1, ...``.
 """
 
 from __future__ import annotations
@@ -25,6 +26,18 @@ import numpy as np
 from amorctl.core.env_random import Seed, env_random, is_per_env
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import RewardSpace
+
+#: objective names of MO-Gymnasium tasks whose reward vector is documented, by id without version
+KNOWN_REWARD_NAMES: dict[str, tuple[str, ...]] = {
+    # forward velocity, 10 x jump height, -|a|^2 (each with the healthy reward added)
+    "mo-hopper": ("forward", "height", "energy"),
+}
+
+
+def known_reward_names(env_id: str, m: int) -> tuple[str, ...] | None:
+    """The names of ``env_id``'s m objectives from :data:`KNOWN_REWARD_NAMES` (None if unknown)."""
+    names = KNOWN_REWARD_NAMES.get(env_id.rsplit("-v", 1)[0])
+    return names if names is not None and len(names) == m else None
 
 
 class MOGymVectorEnv:
@@ -56,7 +69,13 @@ class MOGymVectorEnv:
                 f"{first}: action space {first.action_space} is not a Box; the Gaussian actor needs "
                 "continuous actions"
             )
-        names = reward_names or getattr(first.unwrapped, "reward_names", None) or [f"r{i}" for i in range(m)]
+        env_id = first.spec.id if first.spec else ""
+        names = (
+            reward_names
+            or getattr(first.unwrapped, "reward_names", None)
+            or known_reward_names(env_id, m)
+            or [f"r{i}" for i in range(m)]
+        )
         if len(names) != m:
             raise AmorError(f"{len(names)} reward names for {m} objectives")
         self.reward_space = RewardSpace(

@@ -222,7 +222,7 @@ def sweep_figure(sweep: Any, path: Path) -> None:
     Violins with the individual episodes jittered on top and the Spearman correlation in the title.
 
     Args:
-        sweep: an :class:`amorctl.analysis.sweeps.WeightSweep`.
+        sweep: an :class:`amorctl.analysis.level_sweep.WeightSweep`.
         path: output file (PNG or SVG by suffix).
     """
     plt = _pyplot()
