@@ -162,10 +162,10 @@ class Science:
   above the one before; Spearman ρ between w_k and the return over all episodes (scipy; the
   verdict's), and as a diagnostic over the episodes that survived only ("ρ survivors"); effect
   size = (mean at w_k = 1 − mean at w_k = 0) / std over episodes at w_k = 0; survival per level.
-  For `smooth` the same envs and seed are rolled out again with the steps recorded: action rate =
-  mean `||q*_t − q*_(t−1)||²` of the PD targets sent (`q* = reference + residual action`),
-  joint-velocity RMS from finite differences of the joint angles; step pairs across a clip switch
-  or an episode end are left out.
+  For `smooth`, the sweep's own episodes also give (as `evaluate --sweep` reports them) the action
+  rate = mean `||q*_t − q*_(t−1)||²` of the PD targets sent (`q* = reference + residual action`)
+  and the joint-velocity RMS from finite differences of the joint angles; step pairs across a clip
+  switch or an episode end are left out.
 - **Claim (i)** (`front`): {a.front_samples} weights `w ~ Dirichlet(1)` (seed {a.eval_seed}), one
   10 s episode each on `walk` (`amorctl.analysis.sweeps.pareto_sweep`); non-dominated fraction
   in all 7 objectives on all episodes and on the surviving episodes alone; hypervolume

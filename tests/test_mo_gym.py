@@ -93,3 +93,13 @@ def test_moppo_trains_on_the_adapter() -> None:
     assert metrics[-1]["env_steps"] == 3 * 16 * 10
     assert all(np.isfinite(m["loss/total"]) for m in metrics)
     assert metrics[-1]["episodes"] >= 16 * 5  # 30 steps of 5-step episodes
+
+
+def test_known_mo_gymnasium_tasks_name_their_objectives_and_declare_the_survival_bonus() -> None:
+    from amorctl.envs.mo_gym import known_rewards
+
+    assert known_rewards("mo-hopper-v5", 3) == (("forward", "height", "energy"), 1.0)
+    assert known_rewards("mo-hopper-v4", 3) == (("forward", "height", "energy"), 1.0)
+    assert known_rewards("mo-hopper-v5", 2) == (None, 0.0)  # cost_objective=False: 2 objectives
+    assert known_rewards("mo-halfcheetah-v5", 2) == (None, 0.0)
+    assert known_rewards("", 3) == (None, 0.0)

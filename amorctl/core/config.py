@@ -385,8 +385,9 @@ def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             f"[ppo] survival_weight = {p.survival_weight:g} needs survival_channel = true",
         ),
         (
-            not p.survival_channel or (torch_cpu and config.env.kind == "tracking"),
+            not p.survival_channel or (torch_cpu and config.env.kind in ("tracking", "gym")),
             "[ppo] survival_channel = true needs run.backend = 'torch-cpu' and env.kind = 'tracking' "
+            "or 'gym' "
             f"(got {config.run.backend!r}, {config.env.kind!r})",
         ),
     ]

@@ -12,7 +12,7 @@ MO-Gymnasium env does) into an :class:`~amorctl.core.vecenv.VectorEnv`:
   truncated episodes (``TimeLimit``) can be bootstrapped.
 
 Copies are stepped in a Python loop, which is fine for benchmark-sized tasks. Objective names come
-from the env's ``reward_names`` attribute if it has one, else from :data:`KNOWN_REWARD_NAMES`
+from the env's ``reward_names`` attribute if it has one, else from :data:`KNOWN_REWARDS`
 (MO-Gymnasium documents its reward vectors but does not name them), else ``r0, r1, ...``.
 """
 
@@ -27,17 +27,20 @@ from amorctl.core.env_random import Seed, env_random, is_per_env
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import RewardSpace
 
-#: objective names of MO-Gymnasium tasks whose reward vector is documented, by id without version
-KNOWN_REWARD_NAMES: dict[str, tuple[str, ...]] = {
-    # forward velocity, 10 x jump height, -|a|^2 (each with the healthy reward added)
-    "mo-hopper": ("forward", "height", "energy"),
+#: MO-Gymnasium tasks whose reward vector is documented, by id without version: the objectives'
+#: names and the survival bonus added to every objective on every step the agent is alive (the
+#: ``[ppo] survival_channel`` lever splits it off)
+KNOWN_REWARDS: dict[str, tuple[tuple[str, ...], float]] = {
+    # forward velocity, 10 x jump height, -|a|^2, each + healthy_reward (1 per step)
+    "mo-hopper": (("forward", "height", "energy"), 1.0),
 }
 
 
-def known_reward_names(env_id: str, m: int) -> tuple[str, ...] | None:
-    """The names of ``env_id``'s m objectives from :data:`KNOWN_REWARD_NAMES` (None if unknown)."""
-    names = KNOWN_REWARD_NAMES.get(env_id.rsplit("-v", 1)[0])
-    return names if names is not None and len(names) == m else None
+def known_rewards(env_id: str, m: int) -> tuple[tuple[str, ...] | None, float]:
+    """(names, survival bonus) of ``env_id``'s m objectives from :data:`KNOWN_REWARDS`;
+    (None, 0.0) for an unknown task."""
+    names, bonus = KNOWN_REWARDS.get(env_id.rsplit("-v", 1)[0], (None, 0.0))
+    return (names, bonus) if names is not None and len(names) == m else (None, 0.0)
 
 
 class MOGymVectorEnv:
@@ -69,11 +72,11 @@ class MOGymVectorEnv:
                 f"{first}: action space {first.action_space} is not a Box; the Gaussian actor needs "
                 "continuous actions"
             )
-        env_id = first.spec.id if first.spec else ""
+        known_names, bonus = known_rewards(first.spec.id if first.spec else "", m)
         names = (
             reward_names
             or getattr(first.unwrapped, "reward_names", None)
-            or known_reward_names(env_id, m)
+            or known_names
             or [f"r{i}" for i in range(m)]
         )
         if len(names) != m:
@@ -85,6 +88,7 @@ class MOGymVectorEnv:
             ),
             low=np.broadcast_to(np.asarray(space.low, dtype=np.float64), (m,)).copy(),
             high=np.broadcast_to(np.asarray(space.high, dtype=np.float64), (m,)).copy(),
+            survival_bonus=bonus,
         )
         self.num_envs = num_envs
         self.num_objectives = m
