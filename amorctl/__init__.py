@@ -3,6 +3,8 @@
 import os
 from importlib.metadata import PackageNotFoundError, version
 
+from amorctl.core.moved import install as _install_moved_paths
+
 # Idle OpenMP threads (torch's intra-op pool) sleep instead of spinning (libgomp's default spins
 # ~3 ms after every parallel region): beside another busy process, spinning workers take the
 # cores MuJoCo's threads need (docs/environment.md, "Threads and contention"). OpenMP reads this
@@ -14,5 +16,8 @@ try:
     __version__ = version("amorctl")
 except PackageNotFoundError:  # running from a source tree that was never installed
     __version__ = "0.0.0+unknown"
+
+# Import paths of 0.1.0 that moved keep working, with a DeprecationWarning (core/moved.py).
+_install_moved_paths()
 
 __all__ = ["__version__"]

@@ -1,9 +1,11 @@
 """The one public module plugin authors import.
 
-A plugin (a character, an objective set, a backend or a motion format) needs ``hookimpl`` to mark
-its hooks, the spec type it registers, and the contracts and data types its code receives or
-returns. All of them are re-exported here, so that amorctl can move its internals without
-breaking plugins::
+A plugin (a character, an objective set, a backend, a motion format or a command) needs
+``hookimpl`` to mark its hooks, the spec type it registers, and the contracts and data types its
+code receives or returns. All of them are re-exported here, so that amorctl can move its internals
+without breaking plugins. The names in ``__all__`` and their signatures are the public API: they
+change only as docs/plugins.md ("Compatibility") says, and ``tests/test_api_surface.py`` fails on
+any change not recorded in its snapshot::
 
     from amorctl.api import CharacterSpec, JointSpec, ActuatorModel, hookimpl
 
@@ -14,7 +16,8 @@ breaking plugins::
 What is here, by plugin kind (see ``docs/plugins.md``):
 
 - every kind: :data:`hookimpl`, :class:`AmorError` (errors the user can fix), ``__version__``,
-  :func:`get_registry` (other installed plugins, by name);
+  :func:`get_registry` (other installed plugins, by name), :class:`MovedWarning` (the
+  ``DeprecationWarning`` of an import path that moved);
 - characters: :class:`CharacterSpec`, :class:`JointSpec`, :class:`ActuatorModel`,
   :data:`KEYPOINTS`, :data:`JOINT_GROUPS`, :func:`character_from_mjcf` (a spec read from a model
   file), :func:`package_file` (a model inside another installed package) and its lazy form
@@ -28,7 +31,8 @@ What is here, by plugin kind (see ``docs/plugins.md``):
 - motion formats: :class:`MotionFormatSpec`, :class:`ImportOptions`, :class:`SourceMotion`,
   :class:`CharacterMotion`, :class:`Skeleton`, :func:`deepmimic_skeleton` (the canonical source
   skeleton), :data:`CANONICAL_JOINTS`, :func:`check_finite`, :func:`check_times`,
-  :func:`file_sha256`.
+  :func:`file_sha256`;
+- commands: :class:`CommandSpec` (a ``typer.Typer`` app or click command added to ``amorctl``).
 
 Layer: this module sits above ``motion/`` (format plugins return its motion records) and below
 ``envs/``; nothing in amorctl below ``plugins/`` imports it.
@@ -50,12 +54,14 @@ from amorctl.core.contracts import (
 )
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import FrameParts, TrackingInputs, frame_dim, split_frame
+from amorctl.core.moved import MovedWarning
 from amorctl.core.specs import (
     JOINT_GROUPS,
     KEYPOINTS,
     ActuatorModel,
     BackendSpec,
     CharacterSpec,
+    CommandSpec,
     ImportOptions,
     JointGroup,
     JointSpec,
@@ -77,7 +83,8 @@ from amorctl.motion.source import (
     check_times,
     deepmimic_skeleton,
 )
-from amorctl.registry import get_registry, hookimpl
+from amorctl.registry import get_registry
+from amorctl.registry import impl as hookimpl
 from amorctl.sim.from_mjcf import character_from_mjcf, package_file, plugin_cache_dir
 
 __all__ = [
@@ -90,6 +97,7 @@ __all__ = [
     "BackendSpec",
     "CharacterMotion",
     "CharacterSpec",
+    "CommandSpec",
     "FrameParts",
     "ImportOptions",
     "JointGroup",
@@ -97,6 +105,7 @@ __all__ = [
     "LazyCharacter",
     "ModelSource",
     "MotionFormatSpec",
+    "MovedWarning",
     "ObjectiveSet",
     "ObjectiveSetSpec",
     "PackageModel",

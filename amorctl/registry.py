@@ -1,10 +1,11 @@
 """The plugin registry: pluggy hookspecs, entry-point loading, lookup by name.
 
 Every plugin, built-in or third-party, is a module named by an entry point in the ``amorctl``
-group. It implements one or more of the four hooks below (characters, objective sets, backends,
-motion formats); each hook receives a ``register`` callback and calls it once per thing it
-provides (register-callback style, as in ``llm``). Plugin authors import ``hookimpl`` and the
-spec types from :mod:`amorctl.api`.
+group. It implements one or more of the hooks below (characters, objective sets, backends,
+motion formats, commands); each hook receives a ``register`` callback and calls it once per thing
+it provides (register-callback style, as in ``llm``). Plugin authors import ``hookimpl`` (this
+module's :data:`impl`) and the spec types from :mod:`amorctl.api`; built-ins below ``api`` in the
+layers use :data:`impl`.
 
 Environment variables:
     AMORCTL_BLOCK_PLUGINS  comma-separated entry-point names (or distribution names) not to load.
@@ -15,7 +16,9 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Iterable
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
 from types import ModuleType
@@ -24,7 +27,15 @@ from typing import Any
 import pluggy
 
 from amorctl.core.errors import AmorError
-from amorctl.core.specs import BackendSpec, CharacterSpec, LazyCharacter, MotionFormatSpec, ObjectiveSetSpec
+from amorctl.core.moved import REMOVED_IN, MovedWarning, moved_names
+from amorctl.core.specs import (
+    BackendSpec,
+    CharacterSpec,
+    CommandSpec,
+    LazyCharacter,
+    MotionFormatSpec,
+    ObjectiveSetSpec,
+)
 
 PROJECT = "amorctl"
 ENTRY_POINT_GROUP = "amorctl"
@@ -32,7 +43,10 @@ BLOCK_ENV = "AMORCTL_BLOCK_PLUGINS"
 TRACE_ENV = "AMORCTL_TRACE_HOOKS"
 
 hookspec = pluggy.HookspecMarker(PROJECT)
-hookimpl = pluggy.HookimplMarker(PROJECT)
+#: the marker of hook implementations (``amorctl.api.hookimpl``; ``amorctl.registry.hookimpl``
+#: was its 0.1.0 path and warns until 0.3.0)
+impl = pluggy.HookimplMarker(PROJECT)
+__getattr__ = moved_names(__name__, {"hookimpl": "amorctl.api"})
 
 
 class HookSpecs:
@@ -56,6 +70,11 @@ class HookSpecs:
         """Call ``register(spec)`` once for every :class:`MotionFormatSpec` (file importer) this
         plugin provides; ``amorctl preprocess`` picks one by ``--format`` or by file suffix."""
 
+    @hookspec
+    def amorctl_register_commands(self, register: Callable[[CommandSpec], None]) -> None:
+        """Call ``register(spec)`` once for every :class:`CommandSpec` (a ``typer.Typer`` app or a
+        click command or group) this plugin adds to the ``amorctl`` command line."""
+
 
 #: plugin kind -> (hook name, spec type or types)
 KINDS: dict[str, tuple[str, type | tuple[type, ...]]] = {
@@ -63,6 +82,7 @@ KINDS: dict[str, tuple[str, type | tuple[type, ...]]] = {
     "objective-set": ("amorctl_register_objective_sets", ObjectiveSetSpec),
     "backend": ("amorctl_register_backends", BackendSpec),
     "motion-format": ("amorctl_register_motion_formats", MotionFormatSpec),
+    "command": ("amorctl_register_commands", CommandSpec),
 }
 
 
@@ -79,12 +99,13 @@ class Provided:
 
 @dataclass(frozen=True)
 class PluginProblem:
-    """A plugin that did not load: blocked by the user, or broken."""
+    """A plugin that did not load (blocked by the user, or broken), or one that loaded through an
+    import path that moved (deprecated; in :attr:`Registry.deprecated`)."""
 
     plugin: str
     package: str
     version: str
-    status: str  # "blocked" | "broken"
+    status: str  # "blocked" | "broken" | "deprecated" (loaded, but uses an import path that moved)
     error: str = ""
 
 
@@ -95,6 +116,7 @@ class Registry:
     items: dict[str, dict[str, Any]] = field(default_factory=lambda: {k: {} for k in KINDS})
     provided: list[Provided] = field(default_factory=list)
     problems: list[PluginProblem] = field(default_factory=list)
+    deprecated: list[PluginProblem] = field(default_factory=list)
 
     def names(self, kind: str) -> list[str]:
         return sorted(self.items[kind])
@@ -125,6 +147,9 @@ class Registry:
 
     def motion_format(self, name: str) -> MotionFormatSpec:
         return self.get("motion-format", name)
+
+    def command(self, name: str) -> CommandSpec:
+        return self.get("command", name)
 
 
 def _build_lazy(lazy: LazyCharacter, plugin: str) -> CharacterSpec:
@@ -204,7 +229,8 @@ def load_registry(
             caller = pm.subset_hook_caller(hook_name, remove_plugins=others)
             package, version = origin[name]
             try:
-                caller(register=_registrar(registry, kind, spec_type, name, package, version))
+                with _recording_moved(registry, name, package, version):
+                    caller(register=_registrar(registry, kind, spec_type, name, package, version))
             except AmorError:
                 raise
             except Exception as exc:
@@ -226,7 +252,8 @@ def _import_plugins(eps: Iterable[EntryPoint], registry: Registry) -> list[tuple
             _trace(f"blocked plugin {ep.name!r} from {package}")
             continue
         try:
-            module = ep.load()
+            with _recording_moved(registry, ep.name, package, version):
+                module = ep.load()
         except Exception as exc:  # a broken plugin must not take the others down
             registry.problems.append(
                 PluginProblem(ep.name, package, version, "broken", f"{type(exc).__name__}: {exc}")
@@ -235,6 +262,25 @@ def _import_plugins(eps: Iterable[EntryPoint], registry: Registry) -> list[tuple
             continue
         imported.append((ep.name, module, package, version))
     return imported
+
+
+@contextmanager
+def _recording_moved(registry: Registry, plugin: str, package: str, version: str) -> Iterator[None]:
+    """Record the :class:`~amorctl.core.moved.MovedWarning` s the plugin's code raises (import
+    paths of 0.1.0 it still uses) as one line of ``registry.deprecated``, for ``amorctl plugins``
+    to show; other warnings pass on as usual."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MovedWarning)
+        yield
+    moved = sorted(
+        {f"{w.message.old} -> {w.message.new}" for w in caught if isinstance(w.message, MovedWarning)}
+    )
+    if moved:
+        error = f"imports paths that moved and go in {REMOVED_IN}: {', '.join(moved)}"
+        registry.deprecated.append(PluginProblem(plugin, package, version, "deprecated", error))
+    for w in caught:
+        if not isinstance(w.message, MovedWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
 
 
 def _registrar(

@@ -118,10 +118,12 @@ def render_markdown(results: dict[str, Any], protocol: str) -> str:
     """docs/science.md from the accumulated results (parts not measured say so and how to run them)."""
     meta = results.get("meta", {})
     lines = [
-        "# Science: does the one policy obey `w`? (issue 13)",
+        "# Science: does the one policy obey `w`?",
         "",
         "Written by `benchmarks/science.py`; every number below comes from the run it names. "
-        "Targets and their verdicts are issue 13's; a miss is reported as a miss.",
+        "Targets and their verdicts are the project's weight-response targets; a miss is reported as "
+        "a miss. The same question on a task that trains in minutes (MO-Gymnasium's hopper, side "
+        "by side with CAPQL): [w-response.md](w-response.md).",
         "",
         "## Run",
         "",

@@ -14,6 +14,7 @@ def _fresh_registry(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.delenv("AMORCTL_BLOCK_PLUGINS", raising=False)
     monkeypatch.delenv("AMORCTL_TRACE_HOOKS", raising=False)
     monkeypatch.delenv("AMORCTL_DEBUG", raising=False)
+    monkeypatch.delenv("AMORCTL_TOKEN", raising=False)  # live inputs: tests set their own token
     reset_registry()
     yield
     reset_registry()
@@ -25,7 +26,9 @@ TOY_RUN_TOML = {
             "threads": 1},
     "env": {"kind": "toy", "num_envs": 64, "episode_seconds": 0.3},
     "network": {"actor_hidden": [32, 32], "critic_hidden": [32, 32], "init_std": 0.2},
-    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3},
+    # fp32 pinned: "auto" picks bf16 on CPUs with AMX, and the fixture's figures must not depend on the CPU
+    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3,
+            "precision": "fp32"},
 }  # fmt: skip
 
 
@@ -106,7 +109,9 @@ TOY_SMOOTH_RUN_TOML = {
             "threads": 1, "seed": 0},
     "env": {"kind": "toy-smooth", "num_envs": 64, "episode_seconds": 1.0},
     "network": {"actor_hidden": [32, 32], "critic_hidden": [32, 32], "init_std": 1.0},
-    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3},
+    # fp32 pinned: "auto" picks bf16 on CPUs with AMX, and the fixture's figures must not depend on the CPU
+    "ppo": {"num_steps": 16, "num_epochs": 4, "num_minibatches": 2, "learning_rate": 3e-3,
+            "precision": "fp32"},
 }  # fmt: skip
 
 

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from amorctl.api import hookimpl
 from amorctl.cli.main import main
 from amorctl.core.config import TrainConfig, merge
 from amorctl.core.contracts import Backend, Policy, Snapshot, TrackingView, Trainer, tracking_view
@@ -28,7 +29,7 @@ from amorctl.core.frame_layout import frame_dim
 from amorctl.core.specs import BackendSpec, CharacterSpec
 from amorctl.core.vecenv import RewardSpace, VectorEnv
 from amorctl.core.weights import sample_dirichlet
-from amorctl.registry import get_registry, hookimpl, load_registry, reset_registry
+from amorctl.registry import get_registry, load_registry, reset_registry
 
 NAME = "stub-numpy"
 CLIPS = {"wave": 0.4, "bend": 0.2}  # clip -> the angle every joint holds, rad

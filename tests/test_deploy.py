@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -320,6 +321,152 @@ def test_live_weights_over_loopback_validation_counts_and_stale_watchdog(bundle_
     assert sum(e.kind == "rejected_input" for e in res.events) == 7
 
 
+TOKEN = "a-test-token-of-32-characters-xx"
+
+
+def test_any_datagram_is_accepted_or_rejected_by_reason_never_raised() -> None:
+    """Arbitrary bytes and arbitrary JSON into the live input's validation (signed and not)."""
+    import json as _json
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from amorctl.core.live_auth import mac
+    from amorctl.deploy.runtime_input import Rejected, UdpWeights
+
+    live = UdpWeights(TRACKING7, np.full(7, 1 / 7), port=0)
+    signed = UdpWeights(TRACKING7, np.full(7, 1 / 7), port=0, token=TOKEN)
+    leaf = st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8)
+    tree = st.recursive(
+        leaf, lambda c: st.lists(c, max_size=8) | st.dictionaries(st.text(max_size=8), c, max_size=8)
+    )
+    message = st.fixed_dictionaries({"weights": tree}, optional={"seq": tree})
+    payloads = (
+        st.binary(max_size=200)
+        | message.map(lambda m: _json.dumps(m).encode())
+        | tree.map(lambda m: _json.dumps(m).encode())
+    )
+
+    @settings(max_examples=400, deadline=None, derandomize=True)
+    @given(payloads)
+    def check(data: bytes) -> None:
+        for endpoint, datagram in ((live, data), (signed, mac(TOKEN, data) + b" " + data)):
+            try:
+                w = endpoint._validate(datagram)
+            except Rejected as rej:
+                assert rej.reason in ("too_long", "bad_json", "bad_shape", "unknown_name", "wrong_count",
+                                      "not_number", "not_finite", "negative", "all_zero", "bad_seq",
+                                      "replayed")  # fmt: skip
+            else:
+                assert w.shape == (7,) and np.isfinite(w).all() and (w >= 0).all()
+                assert abs(w.sum() - 1) < 1e-12
+
+    try:
+        check()
+    finally:
+        live.close()
+        signed.close()
+
+
+def test_signed_live_input_counts_and_ignores_wrong_missing_or_replayed_hmacs(bundle_dir: Path) -> None:
+    from amorctl.core.live_auth import mac, sign_datagram
+    from amorctl.deploy.runtime_input import UdpWeights
+
+    rt = Runtime(read_bundle(bundle_dir))
+    clock = [0.0]
+    live = UdpWeights(TRACKING7, np.full(7, 1 / 7), port=0, stale_timeout=10, clock=lambda: clock[0],
+                      token=TOKEN)  # fmt: skip
+    good = sign_datagram({"weights": {"up": 1, "smooth": 3}}, TOKEN, 10)
+    no_seq = b'{"weights":{"lo":1}}'
+    sends = {
+        1: [good],
+        3: [b'{"weights": {"lo": 1}}',  # the unsigned (loopback) format
+            sign_datagram({"weights": {"lo": 1}}, "another-token-of-16+", 11),  # another token
+            good.replace(b'"up":1', b'"up":5'),  # altered after signing
+            good,  # replayed: its seq is not above the last accepted
+            mac(TOKEN, no_seq) + b" " + no_seq,  # signed, but without a sequence number
+            sign_datagram({"weights": [1, 2]}, TOKEN, 12),  # signed, but invalid weights
+            b"f" * 64],  # a MAC with nothing after it
+        5: [sign_datagram({"weights": {"lo": 1}}, TOKEN, 13)],
+    }  # fmt: skip
+    hook, sock = _live_script(rt, live.address[1], sends, clock)
+    try:
+        res = rt.run(live, motion="sway_a", seconds=0.2, stop_on_fall=False, record=True, should_stop=hook)
+    finally:
+        sock.close()
+        live.close()
+    w = np.array([r.weights for r in res.records])
+    np.testing.assert_allclose(w[0], np.full(7, 1 / 7))
+    np.testing.assert_allclose(w[1], [0.25, 0, 0, 0, 0, 0, 0.75])
+    np.testing.assert_allclose(w[3], w[1])  # nothing of tick 3 applied
+    np.testing.assert_allclose(w[5], np.eye(7)[1])
+    stats = res.input
+    assert stats["signed"] and stats["accepted"] == 2 and stats["received"] == 9
+    assert stats["rejected_by_reason"] == {"unsigned": 2, "bad_mac": 2, "replayed": 1, "bad_seq": 1,
+                                           "wrong_count": 1}  # fmt: skip
+    assert sum(e.kind == "rejected_input" for e in res.events) == 7
+
+
+def test_a_backlog_is_read_within_the_poll_budget_and_rejections_are_reported_at_a_bounded_rate() -> None:
+    import socket
+
+    from amorctl.deploy.runtime_input import UdpWeights
+
+    reported: list[str] = []
+    live = UdpWeights(TRACKING7, np.full(7, 1 / 7), port=0, budget_s=0.0, reports_per_s=5,
+                      on_reject=reported.append)  # fmt: skip
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for _ in range(200):
+            sock.sendto(b"{not json", live.address)
+        sock.sendto(b'{"weights": {"vel": 1}}', live.address)
+        time.sleep(0.05)
+        assert not live.poll()  # a zero budget: 7 datagrams (the clock is read every 8th), then wait
+        assert live.stats.received == 7 and live.stats.deferred_polls == 1
+        live.budget_s = 1.0
+        assert live.poll()  # the rest, the valid one last
+        np.testing.assert_allclose(live.weights, np.eye(7)[5])
+    finally:
+        sock.close()
+    report = live.report()
+    live.close()
+    assert report["received"] == 201 and report["accepted"] == 1 and report["rejected"] == 200
+    assert len(reported) == 5 and report["unreported"] == 195 and report["kernel_drops"] in (0, None)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signed", [False, True], ids=["loopback", "token"])
+def test_a_flood_of_live_datagrams_keeps_the_ticks_on_time(bundle_dir: Path, signed: bool) -> None:
+    """≥ 10,000 datagrams/s for 3.5 s, valid and malformed mixed (with a token also unsigned, wrongly
+    signed, tampered and replayed ones), into a real-time runtime: ≥ 95 % of its 250 ticks on time,
+    only valid weights applied, every datagram counted, rejections reported at a bounded rate."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import deploy_flood
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    token = deploy_flood.TOKEN if signed else None
+    flood = deploy_flood.run_flood(bundle_dir, rate=12000, seconds=5.0, flood_seconds=3.5, token=token)
+    sent, info = flood["sent"], flood["result"]
+    inp = info["input"]
+    assert sent["rate"] >= 10000 and sent["seconds"] >= 3.5 and sent["sent"] >= 35000, sent
+    assert info["steps"] == 250 and not info["diverged"]  # never crashed, ran to the end
+    assert info["on_time"] >= 0.95, info
+    assert inp["signed"] is signed and inp["received"] == inp["accepted"] + inp["rejected"]
+    assert inp["received"] + (inp["kernel_drops"] or 0) >= 0.9 * sent["sent"], (inp, sent)
+    kinds = {k for k in sent["by_kind"] if k not in ("valid", "not_sent")}
+    assert set(inp["rejected_by_reason"]) == kinds  # each malformed kind counted under its reason
+    share = sent["by_kind"]["valid"] / sent["sent"]
+    assert abs(inp["accepted"] / inp["received"] - share) < 0.05, (inp, sent)
+    allowed = np.vstack([deploy_flood.expected_weights(), np.full((1, 7), 1 / 7)])
+    applied = flood["applied"]
+    assert np.isclose(applied[:, None, :], allowed[None], atol=1e-12).all(axis=2).any(axis=1).all()
+    flood_rows = np.isclose(applied[:, None, :], allowed[None, :3], atol=1e-12).all(axis=2)
+    assert flood_rows.any(axis=0).sum() >= 2  # the flood's valid weights were applied, not one stuck
+    reported = sum(e["kind"] == "rejected_input" for e in info["events"])
+    assert reported <= 20 * 6 and inp["unreported"] == inp["rejected"] - reported
+
+
 def test_realtime_deadline_misses_latch_the_hold(bundle_dir: Path) -> None:
     import time
 
@@ -416,6 +563,35 @@ def _one_error_line(code: int, err: str) -> str:
     return lines[0]
 
 
+def test_a_bundle_exported_before_models_were_copied_still_reads(bundle_dir: Path, tmp_path: Path) -> None:
+    """Earlier bundles named the installed plugin package (``plugin_module``) and hashed the MJB."""
+    import shutil
+
+    import onnx
+
+    from amorctl.deploy.bundle import mjb_sha256
+    from amorctl.registry import get_registry
+    from amorctl.sim.model import load_model
+
+    old = tmp_path / "old"
+    shutil.copytree(bundle_dir, old)
+    shutil.rmtree(old / "model")
+    meta = json.loads((old / "deploy.json").read_text())
+    cm = meta["character_model"]
+    for key in ("mjcf", "model_files", "licence_files", "licence", "model_source"):
+        del cm[key]
+    cm.update(plugin_module="amorctl.plugins.characters.biped20", mjcf="biped20.xml")
+    meta["model_sha256"] = mjb_sha256(load_model(get_registry().character("biped20")))
+    (old / "deploy.json").write_text(json.dumps(meta))
+    model = onnx.load(str(old / ONNX_FILE))
+    for prop in model.metadata_props:
+        if prop.key in ("character_model", "model_sha256"):
+            prop.value = json.dumps(meta[prop.key])
+    onnx.save(model, str(old / ONNX_FILE))
+    b = read_bundle(old)
+    assert b.spec is not None and b.spec.mjcf_path == get_registry().character("biped20").mjcf_path
+
+
 def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
     bundle_dir: Path, deploy_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -465,8 +641,16 @@ def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
         meta["control_hz"] = 100
         (d / "deploy.json").write_text(json.dumps(meta))
 
+    def lost_model(d: Path) -> None:
+        (d / "model" / "biped20.xml").unlink()
+
     for name, damage, expect in (
         ("hash", other_hash, "model_sha256"),
+        (
+            "model",
+            lost_model,
+            "biped20.xml: missing from the bundle (1 model file(s)): copy the whole bundle",
+        ),
         ("onnx", cut_onnx, "onnxruntime cannot load"),
         ("json", bad_json, "not valid JSON"),
         ("edited", edited_json, "differs from"),
@@ -480,15 +664,29 @@ def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
         assert not log.exists()
 
 
-def test_listen_binds_loopback_unless_host_is_given() -> None:
+def test_listen_binds_beyond_loopback_only_with_a_token() -> None:
     from amorctl.cli.deploy import _listen_address
-    from amorctl.deploy.runtime_input import Rejected, parse_message
+    from amorctl.core.live_auth import is_loopback
+    from amorctl.deploy.runtime_input import Rejected, UdpWeights, parse_message
 
     assert _listen_address("udp://127.0.0.1:9870", None) == ("127.0.0.1", 9870)
     assert _listen_address("udp://localhost:9870", None) == ("127.0.0.1", 9870)
-    with pytest.raises(AmorError, match="--host"):
-        _listen_address("udp://0.0.0.0:9870", None)
-    assert _listen_address("udp://127.0.0.1:9870", "0.0.0.0") == ("0.0.0.0", 9870)
+    assert _listen_address("udp://[::1]:9870", None) == ("::1", 9870)
+    for listen, host in (("udp://0.0.0.0:9870", None), ("udp://127.0.0.1:9870", "0.0.0.0"),
+                         ("udp://192.168.1.20:9870", None), ("udp://robot.local:9870", None)):  # fmt: skip
+        with pytest.raises(AmorError, match="beyond loopback") as info:
+            _listen_address(listen, host)
+        assert "set a shared token (AMORCTL_TOKEN=" in str(info.value) and "or --token" in str(info.value)
+    token = "x" * 16
+    assert _listen_address("udp://127.0.0.1:9870", "0.0.0.0", token) == ("0.0.0.0", 9870)
+    assert _listen_address("udp://0.0.0.0:9870", None, token) == ("0.0.0.0", 9870)
+    with pytest.raises(AmorError, match="the token is 15 characters; use at least 16"):
+        _listen_address("udp://0.0.0.0:9870", None, "x" * 15)
+    with pytest.raises(AmorError, match="beyond loopback"):  # the library refuses it as well
+        UdpWeights(TRACKING7, np.full(7, 1 / 7), host="0.0.0.0")
+    assert [is_loopback(h) for h in ("127.0.0.1", "127.8.0.1", "::1", "localhost", "0.0.0.0", "", "::")] == [
+        True, True, True, True, False, False, False,
+    ]  # fmt: skip
     with pytest.raises(AmorError, match="udp://"):
         _listen_address("tcp://127.0.0.1:1", None)
     np.testing.assert_allclose(

@@ -203,16 +203,31 @@ def test_live_weights_over_udp_to_the_cli_without_torch(abs_bundle: Path, tmp_pa
     assert dog.count("rejected_input") == 5 and "stale_input" in dog and "input_restored" in dog
 
 
-def test_listen_binds_loopback_unless_host_is_given_through_the_cli(abs_bundle: Path, tmp_path: Path) -> None:
+def test_listen_beyond_loopback_needs_a_token_through_the_cli(abs_bundle: Path, tmp_path: Path) -> None:
     entry, env = _amorctl(tmp_path)
     base = [*entry, "deploy", "run", str(abs_bundle), "--seconds", "0.1"]
-    proc = subprocess.run([*base, "--listen", "udp://0.0.0.0:0"], env=env, capture_output=True, text=True)
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(lines) == 1 and "--host" in lines[0], proc.stderr
+    for extra in (["--listen", "udp://0.0.0.0:0"], ["--listen", "udp://127.0.0.1:0", "--host", "0.0.0.0"]):
+        proc = subprocess.run([*base, *extra], env=env, capture_output=True, text=True)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error: --listen "), (
+            proc.stderr
+        )
+        assert "beyond loopback" in lines[0] and "AMORCTL_TOKEN=" in lines[0] and "--token" in lines[0]
+    short = {**env, "AMORCTL_TOKEN": "short"}
+    proc = subprocess.run([*base, "--listen", "udp://0.0.0.0:0"], env=short, capture_output=True, text=True)
+    assert proc.returncode == 2 and "the token is 5 characters; use at least 16" in proc.stderr
     proc = subprocess.run([*base, "--listen", "udp://0.0.0.0:0", "--host", "127.0.0.1"], env=env,
                           capture_output=True, text=True)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert re.search(r"listening for weights on udp://127\.0\.0\.1:\d+", proc.stderr)
+    assert re.search(r"listening for weights on udp://127\.0\.0\.1:\d+\n", proc.stderr)
+    signed = {**env, "AMORCTL_TOKEN": "t" * 24}  # a token set: even loopback takes signed datagrams only
+    proc = subprocess.run([*base, "--listen", "udp://127.0.0.1:0", "--json"], env=signed, capture_output=True,
+                          text=True)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(
+        r"listening for weights on udp://127\.0\.0\.1:\d+ \(signed datagrams only\)", proc.stderr
+    )
+    assert json.loads(proc.stdout)["input"]["signed"] is True
 
 
 def test_the_deploy_module_entry_runs_without_torch(abs_bundle: Path, tmp_path: Path) -> None:

@@ -52,4 +52,111 @@ def test_serve_hlp_live_serves_the_hlp_page(monkeypatch) -> None:
         "port": 9000,
         "announce": None,
         "app_class": hlp_live.HlpLiveApp,
+        "token": None,
     }
+
+
+TOKEN = "a-live-page-token-0123456789"
+
+
+def test_the_live_page_beyond_loopback_needs_a_token() -> None:
+    _FakeApp.made.clear()
+    for host in ("0.0.0.0", "192.168.1.20", "::"):
+        with pytest.raises(AmorError, match="beyond loopback") as info:
+            tune_live.serve_live("session", host, 8123, app_class=_FakeApp)  # type: ignore[arg-type]
+        assert "AMORCTL_TOKEN=" in str(info.value) and "--token" in str(info.value)
+    with pytest.raises(AmorError, match="the token is 5 characters"):
+        tune_live.serve_live("session", "0.0.0.0", 8123, app_class=_FakeApp, token="short")  # type: ignore[arg-type]
+    assert _FakeApp.made == []  # refused before anything was served
+
+
+class _Inner:
+    """A stand-in for the page: any GET answers 'inner <path>'."""
+
+    def __init__(self) -> None:
+        import http.server
+        import threading
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                body = f"inner {self.path}".encode()
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args: object) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.port = self.server.server_address[1]
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def _get(port: int, path: str, headers: dict[str, str] | None = None, method: str = "GET"):  # type: ignore[no-untyped-def]
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+    try:
+        conn.request(method, path, headers=headers or {})
+        resp = conn.getresponse()
+        return resp.status, dict(resp.getheaders()), resp.read().decode()
+    finally:
+        conn.close()
+
+
+def test_the_gate_admits_only_a_browser_that_showed_the_token() -> None:
+    from amorctl.tune.live_gate import COOKIE, LiveGate
+
+    inner = _Inner()
+    gate = LiveGate("127.0.0.1", 0, inner.port, TOKEN)
+    try:
+        assert gate.url == f"http://127.0.0.1:{gate.port}/?token={TOKEN}"
+        status, _, body = _get(gate.port, "/")
+        assert status == 403 and "open the URL with ?token=" in body
+        assert _get(gate.port, "/?token=wrong")[0] == 403
+        assert _get(gate.port, f"/?token={TOKEN}", method="POST")[0] == 403  # only a GET is let in
+        status, headers, _ = _get(gate.port, f"/index.html?x=1&token={TOKEN}")
+        assert status == 303 and headers["Location"] == "/index.html?x=1"  # the token leaves the URL
+        cookie = headers["Set-Cookie"]
+        assert cookie.startswith(f"{COOKIE}=") and "HttpOnly" in cookie and "SameSite=Strict" in cookie
+        assert TOKEN not in cookie  # the cookie holds an HMAC of the token, not the token
+        value = cookie.split(";")[0]
+        status, _, body = _get(gate.port, "/app.js", {"Cookie": f"theme=dark; {value}"})
+        assert (status, body) == (200, "inner /app.js")  # relayed to the page
+        assert _get(gate.port, "/", {"Cookie": f"{COOKIE}=forged"})[0] == 403
+        assert gate.refused == 4
+    finally:
+        gate.close()
+        inner.close()
+
+
+def test_serve_live_with_a_token_puts_the_page_behind_the_gate() -> None:
+    urls: list[str] = []
+    seen: dict[str, object] = {}
+
+    class App:
+        def __init__(self, session: object, host: str, port: int) -> None:
+            seen["bound"] = (host, port)  # the page itself stays on loopback, at a free port
+            self.inner = _Inner()
+            self.port = self.inner.port
+
+        def start(self) -> None:
+            pass
+
+        def wait(self) -> None:  # while serving: the announced URL is the gate's, with the token
+            import urllib.parse
+
+            url = urllib.parse.urlsplit(urls[0])
+            seen["direct"] = _get(url.port, "/")[0]
+            seen["with token"] = _get(url.port, f"{url.path}?{url.query}")[0]
+            self.inner.close()
+            raise KeyboardInterrupt
+
+    tune_live.serve_live("s", "127.0.0.1", 0, urls.append, app_class=App, token=TOKEN)  # type: ignore[arg-type]
+    assert seen == {"bound": ("127.0.0.1", 0), "direct": 403, "with token": 303}
+    assert re.fullmatch(rf"http://127\.0\.0\.1:\d+/\?token={TOKEN}", urls[0])

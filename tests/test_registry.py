@@ -8,18 +8,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import typer
 
+from amorctl.api import hookimpl
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import (
     ActuatorModel,
     BackendSpec,
     CharacterSpec,
+    CommandSpec,
     ImportOptions,
     JointSpec,
     MotionFormatSpec,
     ObjectiveSetSpec,
 )
-from amorctl.registry import HookSpecs, hookimpl, load_registry
+from amorctl.registry import HookSpecs, load_registry
 
 
 def _character(name: str) -> CharacterSpec:
@@ -77,6 +80,7 @@ def test_every_hook_is_documented_and_one_per_kind() -> None:
     assert sorted(hooks) == [
         "amorctl_register_backends",
         "amorctl_register_characters",
+        "amorctl_register_commands",
         "amorctl_register_motion_formats",
         "amorctl_register_objective_sets",
     ]
@@ -88,23 +92,27 @@ def test_fake_plugins_of_every_kind_register() -> None:
     objective_set = ObjectiveSetSpec("fake7", "fake objectives", ("a", "b"), make=lambda c: None)
     backend = BackendSpec("fake-backend", "fake backend", make=lambda **kw: None)
     fmt = MotionFormatSpec("fakefmt", (".fake",), load=lambda path, options: None)
+    command = CommandSpec("fake-cmd", typer.Typer())
     plugin = _plugin(
         amorctl_register_characters=lambda register: register(_character("fakechar")),
         amorctl_register_objective_sets=lambda register: register(objective_set),
         amorctl_register_backends=lambda register: register(backend),
         amorctl_register_motion_formats=lambda register: register(fmt),
+        amorctl_register_commands=lambda register: register(command),
     )
     registry = load_registry(eps=[_ep("fakeplugin", plugin, "fake-pkg", "9.9")])
     assert registry.names("character") == ["fakechar"]
     assert registry.objective_set("fake7") is objective_set
     assert registry.backend("fake-backend") is backend
     assert registry.motion_format("fakefmt") is fmt
+    assert registry.command("fake-cmd") is command
     rows = {(p.name, p.kind, p.package, p.version) for p in registry.provided}
     assert rows == {
         ("fakechar", "character", "fake-pkg", "9.9"),
         ("fake7", "objective-set", "fake-pkg", "9.9"),
         ("fake-backend", "backend", "fake-pkg", "9.9"),
         ("fakefmt", "motion-format", "fake-pkg", "9.9"),
+        ("fake-cmd", "command", "fake-pkg", "9.9"),
     }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import struct
 from pathlib import Path
 
 import mujoco
@@ -430,3 +431,72 @@ def test_the_walkthrough_plugin_in_the_docs_registers_the_t1(monkeypatch: pytest
     assert "t1" in registry.names("character")
     monkeypatch.setattr(reg, "_CACHED", registry)
     assert registry.character("t1") == t1_spec()
+
+
+# ---------------------------------------------------------------------------- deploy bundles
+
+
+def test_deploy_bundle_carries_a_model_left_in_its_own_package(
+    tmp_path: Path,
+    t1_dataset: Path,
+    register_character,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    """Issue 26: the T1 set up with ``package_model(...)`` as docs/plugins.md recommends (its model
+    stays in a robot-description package): `deploy export` copies the MJCF, the meshes it uses and
+    the package's LICENSE into the bundle; `deploy run` runs after that package is deleted."""
+    import importlib
+    import shutil
+
+    import torch
+
+    from amorctl.api import package_model
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.train.loop import train_run
+
+    site = tmp_path / "site"
+    shutil.copytree(t1_path().parent, site / "robot_models_t1" / "booster_t1")
+    (site / "robot_models_t1" / "__init__.py").write_text("")
+    monkeypatch.syspath_prepend(str(site))
+    importlib.invalidate_caches()
+    register_character(t1_spec(package_model("robot_models_t1", "booster_t1", "t1.xml")))
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"kind": "tracking", "character": "t1", "dataset": str(t1_dataset), "num_envs": 2,
+                    "episode_seconds": 0.4},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+        },
+        "t1 deploy test",
+    )  # fmt: skip
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        train_run(config, tmp_path / "run")
+    finally:
+        torch.set_num_threads(threads)
+    bundle = tmp_path / "bundle"
+    code, out, err = run(capsys, "deploy", "export", str(tmp_path / "run"), "--out", str(bundle), "--json")
+    assert code == 0, err
+    model = site / "robot_models_t1" / "booster_t1" / "t1.xml"
+    meshes = {f"model/assets/{m.file}" for m in mujoco.MjSpec.from_file(str(model)).meshes}
+    cm = json.loads((bundle / "deploy.json").read_text())["character_model"]
+    assert cm["mjcf"] == "model/t1.xml" and cm["licence_files"] == ["model/LICENSE"]
+    assert cm["model_source"] == str(model)  # where it came from (character_from_mjcf resolved it)
+    assert set(cm["model_files"]) == {"model/t1.xml", "model/LICENSE"} | meshes  # no README, no t1.png
+    assert json.loads(out)["model_files"] == len(meshes) + 2
+    assert (bundle / "model" / "LICENSE").read_bytes() == (model.parent / "LICENSE").read_bytes()
+
+    shutil.rmtree(site / "robot_models_t1")  # the package that held the model is gone
+    code, out, err = run(capsys, "deploy", "run", str(bundle), "--seconds", "0.2", "--json")
+    assert code == 0, err
+    mesh = bundle / sorted(meshes)[0]  # a binary STL: 80-byte header, count, then triangles
+    data = bytearray(mesh.read_bytes())
+    data[96:100] = struct.pack("<f", struct.unpack("<f", data[96:100])[0] + 0.01)  # one vertex moves
+    mesh.write_bytes(bytes(data))
+    code, out, err = run(capsys, "deploy", "run", str(bundle), "--seconds", "0.2")
+    assert code == 2 and err.count("\n") == 1
+    assert "model_sha256" in err and "differs from the model it runs" in err and "export it again" in err

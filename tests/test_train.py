@@ -323,6 +323,39 @@ def test_divergence_before_the_first_checkpoint_is_one_line_and_removes_the_run(
     assert sorted(p.name for p in existing.iterdir()) == ["notes.txt"]  # only the run's files went
 
 
+def test_divergence_right_after_a_resume_does_not_call_that_checkpoint_good(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
+
+    iteration = MOPPOTrainer.iteration
+
+    def diverging_after(n: int):
+        def step(self):
+            metrics = iteration(self)
+            return {**metrics, "loss/total": float("nan")} if self.iteration_count > n else metrics
+
+        return step
+
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(TINY_TOML)
+    out = tmp_path / "run"
+    monkeypatch.setattr(MOPPOTrainer, "iteration", diverging_after(2))  # a checkpoint at 2, then NaN
+    code, _, err = run_cli(capsys, "train", "--config", str(cfg), "--out", str(out), "--json")
+    good = out / "checkpoints" / "iter_000002.json"
+    assert code == 2 and err == (
+        f"error: training diverged at iteration 3 (non-finite loss); the last good checkpoint is {good}\n"
+    )
+    monkeypatch.setattr(MOPPOTrainer, "iteration", diverging_after(0))  # NaN right after the resume
+    code, _, err = run_cli(capsys, "train", "--resume", "--out", str(out), "--json")
+    assert code == 2 and err.count("\n") == 1, err
+    assert "last good checkpoint" not in err
+    assert err.startswith(
+        f"error: training diverged at iteration 3 (non-finite loss); it diverged before saving a checkpoint "
+        f"after resuming from {good}, which may itself hold the bad state"
+    )
+
+
 def test_captured_simulator_warnings_are_counted_not_printed(capfd: pytest.CaptureFixture) -> None:
     import mujoco
 

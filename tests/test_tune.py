@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -591,3 +592,59 @@ def test_live_app_steps_a_toy_run_in_the_background_and_stops(toy_run: Path) -> 
     assert app.error is None
     with pytest.raises(OSError):
         urllib.request.urlopen(app.url, timeout=2)
+
+
+def test_live_page_behind_the_token_gate_serves_its_websocket_only_with_the_cookie(toy_run: Path) -> None:
+    """The real page (viser) behind :class:`LiveGate`: the page's websocket handshake passes with
+    the cookie the token URL gave, and is refused (403) without it."""
+    import viser
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from amorctl.tune.live import LiveApp, LiveSession
+    from amorctl.tune.live_gate import LiveGate
+
+    token = "a-live-page-token-0123456789"
+    session = LiveSession(PinnedMotion(toy_run), np.array([1.0, 0.0]))
+    app = LiveApp(session, host="127.0.0.1", port=0, realtime=False).start()
+    gate = LiveGate("127.0.0.1", 0, app.port, token)
+    try:
+        cookies = urllib.request.HTTPCookieProcessor()
+        opener = urllib.request.build_opener(cookies)  # a client that keeps cookies, as browsers do
+        with opener.open(gate.url, timeout=10) as resp:  # the token URL -> redirect + cookie -> the page
+            assert resp.status == 200 and resp.url == f"http://127.0.0.1:{gate.port}/"
+            assert b"<html" in resp.read().lower()
+        value = "; ".join(f"{c.name}={c.value}" for c in cookies.cookiejar)
+        assert value.startswith("amorctl_live=")
+        with pytest.raises(urllib.error.HTTPError, match="403"):  # no token, no cookie: refused
+            urllib.request.urlopen(f"http://127.0.0.1:{gate.port}/", timeout=10)
+        ws_url = f"ws://127.0.0.1:{gate.port}/"
+        protocol = [f"viser-v{viser.__version__}"]
+        with connect(ws_url, subprotocols=protocol, additional_headers={"Cookie": value}) as ws:
+            assert ws.recv(timeout=10)  # the page's first messages came through the gate
+        with pytest.raises(InvalidStatus, match="403"):
+            connect(ws_url, subprotocols=protocol)
+    finally:
+        gate.close()
+        app.stop()
+
+
+def test_live_page_beyond_loopback_without_a_token_is_one_error_line_before_any_work(
+    toy_run: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import amorctl.tune.session as session_mod
+
+    def tripwire(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the run was opened")
+
+    monkeypatch.setattr(session_mod, "PinnedMotion", tripwire)
+    for extra in ([], ["--hlp", str(toy_run / "no-hlp")]):
+        code = main(["tune", str(toy_run), "--live", "--host", "0.0.0.0", *extra])
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1, err
+        assert lines[0].startswith("error: --live --host 0.0.0.0 binds 0.0.0.0, beyond loopback")
+        assert "AMORCTL_TOKEN=" in lines[0] and "--token" in lines[0]
+    monkeypatch.setenv("AMORCTL_TOKEN", "short")
+    assert main(["tune", str(toy_run), "--live", "--host", "0.0.0.0"]) == 2
+    assert "the token is 5 characters" in capsys.readouterr().err

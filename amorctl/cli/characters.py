@@ -73,9 +73,23 @@ def show_character(
     )
     console.print(f"end effectors: {', '.join(info['end_effectors'])}", highlight=False)
     act = info["actuator_model"]
-    console.print("actuator model: " + ", ".join(f"{k}={v}" for k, v in act.items()), highlight=False)
+    console.print(
+        "actuator model (as simulated: joint properties from the compiled model): "
+        + ", ".join(f"{k}={_range_text(v)}" for k, v in act.items()),
+        highlight=False,
+    )
     table = Table(title=f"{info['name']} joints")
-    for col in ("joint", "group", "range (deg)", "kp", "kd", "torque limit"):
+    for col in (
+        "joint",
+        "group",
+        "range (deg)",
+        "kp",
+        "kd",
+        "torque limit",
+        "armature",
+        "friction",
+        "damping",
+    ):
         table.add_column(col)
     for j in info["joints"]:
         lo, hi = j["range_deg"]
@@ -83,11 +97,23 @@ def show_character(
             j["name"],
             j["group"],
             f"{lo:.0f} … {hi:.0f}",
-            f"{j['kp']:g}",
-            f"{j['kd']:g}",
-            f"{j['torque_limit']:g}",
+            *(
+                f"{j[k]:g}"
+                for k in ("kp", "kd", "torque_limit", "armature", "friction_coulomb", "friction_viscous")
+            ),
         )
     console.print(table)
+
+
+def _range_text(value: object) -> str:
+    """``0.01`` or ``0.005…0.02`` (a [min, max] of per-joint values)."""
+    return (
+        f"{value[0]:g}…{value[1]:g}"
+        if isinstance(value, list)
+        else f"{value:g}"
+        if isinstance(value, float)
+        else str(value)
+    )
 
 
 #: scale profile -> the built-in character whose ``smooth`` scales the profile was tuned on.
@@ -99,6 +125,10 @@ _STYLE = {"pass": "green", "warn": "yellow", "fail": "red"}
 def check_character_cmd(
     name: Annotated[str, typer.Argument(help="Character name (see `amorctl characters list`).")],
     hold: Annotated[bool, typer.Option("--hold/--no-hold", help="Run the 5 s PD hold test.")] = True,
+    cost: Annotated[
+        bool,
+        typer.Option("--cost/--no-cost", help="Time the simulation (about a second) and report its cost."),
+    ] = True,
     objective_set: Annotated[
         str, typer.Option("--objectives", help="Objective set whose smooth scales to suggest for.")
     ] = "tracking7",
@@ -118,7 +148,7 @@ def check_character_cmd(
         except AmorError:
             scales = {}
         scale = scales.get("smooth_torque")
-    checks = check_character(spec, hold=hold, reference=reference, smooth_torque_scale=scale)
+    checks = check_character(spec, hold=hold, reference=reference, smooth_torque_scale=scale, cost=cost)
     result = worst(checks)
     if json_out:
         print_json({"character": name, "result": result, "checks": checks_json(checks)})

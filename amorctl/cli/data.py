@@ -21,7 +21,7 @@ def show(
     json_out: JsonFlag = False,
 ) -> None:
     """List the clips with frame counts, durations, sources and retargeting errors, and the
-    SHA-256 of every array and attachment (checked while loading)."""
+    SHA-256 of every array, of the attachment and of the metadata (checked while loading)."""
     lib = load_dataset(dataset)
     integrity = lib.metadata.get("integrity", {})
     clips = [
@@ -80,6 +80,13 @@ def show(
     console.print("integrity: every SHA-256 below was verified while loading", highlight=False)
     for name, digest in integrity["sha256"].items():
         console.print(f"  {name:<{_WIDTH}} {digest}", highlight=False, soft_wrap=True)
+    if not integrity.get("metadata_verified"):
+        console.print(
+            f"  metadata: not verified ({integrity.get('reason', 'no hash')}); "
+            "re-run `amorctl preprocess` to add it",
+            highlight=False,
+            soft_wrap=True,
+        )
 
 
 _WIDTH = 12 + len("attachment:")  # the longest array or attachment name column

@@ -30,8 +30,6 @@ app = typer.Typer(
     add_completion=False,
 )
 
-LOOPBACK = ("127.0.0.1", "localhost", "::1", "")
-
 WeightsOpt = Annotated[
     str | None,
     typer.Option("--weights", "-w", help="Constant weights, e.g. up=1,smooth=2 (normalized), or 'uniform'."),
@@ -51,12 +49,19 @@ def export(
     checkpoint: Annotated[
         int | None, typer.Option("--checkpoint", help="Iteration of the checkpoint (default: the newest).")
     ] = None,
+    data: Annotated[
+        Path | None,
+        typer.Option(
+            "--data", help="Where the run's dataset is now, if it moved (same SHA-256 as recorded)."
+        ),
+    ] = None,
     json_: JsonFlag = False,
 ) -> None:
-    """Write policy.onnx (weights w as an input), deploy.json and motions.npz; checks parity."""
+    """Write policy.onnx (weights w as an input), deploy.json, motions.npz and the character's model
+    (model/: its MJCF, meshes, textures and licence); checks parity."""
     from amorctl.deploy.export import export_bundle
 
-    res = export_bundle(run, out, checkpoint)
+    res = export_bundle(run, out, checkpoint, data=data)
     info = {
         "out": str(res.out),
         "iteration": res.iteration,
@@ -65,6 +70,7 @@ def export(
         "parity_max_abs": res.parity_max_abs,
         "parity_samples": res.parity_samples,
         "onnx_bytes": res.onnx_bytes,
+        "model_files": res.model_files,
     }
     if json_:
         print_json(info)
@@ -78,6 +84,9 @@ def export(
         f"parity onnxruntime vs torch: max |Δ| = {res.parity_max_abs:.3g} "
         f"over {res.parity_samples} observations"
     )
+    if res.model_files:  # the character's model, its assets and licence, copied into the bundle
+        size = sum(f.stat().st_size for f in (res.out / "model").rglob("*") if f.is_file())
+        console.print(f"model: {res.model_files} file(s), {size / 1e6:.1f} MB in {res.out / 'model'}")
 
 
 def _weights_source(bundle: Any, weights: str | None, schedule: Path | None) -> tuple[Any, str]:
@@ -104,17 +113,19 @@ def _load(bundle_dir: Path, randomize: Path | None) -> tuple[Any, Any]:
     return read_bundle(bundle_dir), rand
 
 
-def _listen_address(listen: str, host: str | None) -> tuple[str, int]:
+def _listen_address(listen: str, host: str | None, token: str | None = None) -> tuple[str, int]:
+    """(host, port) to bind for ``--listen`` (``--host`` overrides the URL's host); beyond
+    loopback only with a shared token (:func:`amorctl.core.live_auth.check_bind`)."""
+    from amorctl.core.live_auth import check_bind
     from amorctl.deploy.runtime_input import parse_listen
 
     url_host, port = parse_listen(listen)
-    if host is not None:
-        return host, port
-    if url_host not in LOOPBACK:
-        raise AmorError(
-            f"--listen {listen}: binds only loopback unless --host {url_host} is given explicitly"
-        )
-    return "127.0.0.1" if url_host in ("", "localhost") else url_host, port
+    address = host if host is not None else url_host
+    if address in ("", "localhost"):
+        address = "127.0.0.1"
+    where = f"--listen {listen}" + (f" --host {host}" if host is not None else "")
+    check_bind(address, token, where)
+    return address, port
 
 
 @app.command("run")
@@ -130,6 +141,16 @@ def run_cmd(
     ] = None,
     host: Annotated[
         str | None, typer.Option("--host", help="Bind the live endpoint to this address (default loopback).")
+    ] = None,
+    token: Annotated[
+        str | None,
+        typer.Option(
+            "--token",
+            envvar="AMORCTL_TOKEN",
+            show_envvar=True,
+            help="Shared token: live datagrams must carry its HMAC (needed beyond loopback; prefer the "
+            "environment variable, a flag shows in `ps`).",
+        ),
     ] = None,
     stale_timeout: Annotated[
         float, typer.Option("--stale-timeout", help="Seconds without a valid live message before holding.")
@@ -161,6 +182,7 @@ def run_cmd(
         raise AmorError("--host needs --listen")
     if out is not None and (out.is_dir() or not out.parent.is_dir()):
         raise AmorError(f"{out}: not a writable file path (is a directory, or its directory is missing)")
+    address = _listen_address(listen, host, token) if listen is not None else None  # before any work
     bundle, rand = _load(bundle_dir, randomize)
     source, _ = _weights_source(bundle, weights, schedule)
     runtime = Runtime(bundle, randomization=rand, realtime=realtime, max_misses=max_misses)
@@ -172,10 +194,10 @@ def run_cmd(
         except AmorError as exc:
             err_console.print(f"warning: rewards not logged: {exc}")
     live = None
-    if listen is not None:
-        address = _listen_address(listen, host)
-        live = UdpWeights(bundle.objectives, source, *address, stale_timeout=stale_timeout)
-        err_console.print(f"listening for weights on udp://{live.address[0]}:{live.address[1]}")
+    if address is not None:
+        live = UdpWeights(bundle.objectives, source, *address, stale_timeout=stale_timeout, token=token)
+        signed = " (signed datagrams only)" if live.token else ""
+        err_console.print(f"listening for weights on udp://{live.address[0]}:{live.address[1]}{signed}")
         source = live
     try:
         result, interrupted = _run_until_interrupt(
@@ -238,7 +260,10 @@ def _print_run(bundle_dir: Path, info: dict[str, Any], out: Path | None) -> None
         i = info["input"]
         console.print(
             f"live input: {i['accepted']} accepted, {i['rejected']} rejected {i['rejected_by_reason']}"
+            + (f", {i['kernel_drops']} dropped by the kernel (buffer full)" if i["kernel_drops"] else "")
         )
+    if info["late_ticks"] is not None:
+        console.print(f"on time: {info['on_time']:.1%} of ticks ({info['late_ticks']} late)")
     for e in info["events"]:
         console.print(f"  {e['t']:7.2f} s  {e['kind']}  {e['detail']}")
     if out is not None:

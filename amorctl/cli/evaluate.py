@@ -23,7 +23,6 @@ from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule, load_schedule
 from amorctl.core.weights import parse_weights
-from amorctl.motion.heldout import config_with_dataset
 from amorctl.train import distributed
 from amorctl.train.rundir import RunDir
 
@@ -179,7 +178,8 @@ def evaluate(
         )
         return
     opened = RunDir.open(run)
-    policy, config = opened.policy(), config_with_dataset(opened.config, data)
+    config = opened.config_for_data(data)  # the run's dataset, moved or held-out clips
+    policy = opened.policy()
     if video is not None and config.env.kind != "tracking":
         raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
     names = tuple(policy.objectives)

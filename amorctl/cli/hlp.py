@@ -303,7 +303,7 @@ def table2(
 def tune_with_hlp(
     run: Path, hlp_dir: Path, motion: str | None, scale: str | None, seconds: float | None,
     weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int,
-    live: bool, host: str, port: int, save_to: Path, live_outputs: bool,
+    live: bool, host: str, port: int, save_to: Path, live_outputs: bool, token: str | None = None,
 ) -> tuple[Any, str, dict[str, Any]] | None:  # fmt: skip
     """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md).
 
@@ -335,8 +335,9 @@ def tune_with_hlp(
 
             session = HlpLiveSession(tenv, hlp, scales, save_to=save_to)
             serve_hlp_live(
-                session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
-            )
+                session, host=host, port=port, token=token,
+                announce=lambda url: err_console.print(f"live page: {url}"),
+            )  # fmt: skip
             return None
         rollout, raw = run_hlp_tune(tenv, hlp, scales, seconds, stop_on_fall=stop_on_fall)
     finally:

@@ -3,14 +3,19 @@
 Subcommands are loaded lazily (:class:`LazyGroup`): ``amorctl X ...`` imports only the module of
 ``X``, so ``amorctl deploy run`` and ``amorctl deploy check`` never import torch (the deploy
 runtime is torch-free, docs/deploy.md) and every command starts without importing the others.
-``amorctl --help`` loads them all to list their help.
+``amorctl --help`` loads them all to list their help, and the commands plugins add
+(:mod:`amorctl.cli.plugin_commands`), which are looked up only for a name that is not built in.
+
+Under ``--json`` stdout carries the JSON alone (:func:`amorctl.cli.output.json_stdout`).
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import sys
+import warnings
 from typing import Annotated, Any
 
 import typer
@@ -19,7 +24,10 @@ from typer.core import TyperGroup
 from typer.models import CommandInfo
 
 from amorctl import __version__
-from amorctl.core.errors import AmorError
+from amorctl.cli.output import json_stdout
+from amorctl.cli.plugin_commands import PluginCommands, build_plugin_commands
+from amorctl.core.errors import AmorError, AmorNote, AmorWarning
+from amorctl.core.files import WRITE_ERRNOS, storage_error
 
 #: subcommand -> (module under amorctl.cli, attribute): a ``typer.Typer`` sub-app or a command
 #: function; in the order ``amorctl --help`` lists them.
@@ -54,16 +62,37 @@ def load_subcommand(name: str) -> Any:
     return command
 
 
+def plugin_commands() -> PluginCommands:
+    """The commands installed plugins add (loads the plugin registry)."""
+    from amorctl.registry import get_registry
+
+    return build_plugin_commands(get_registry(), SUBCOMMANDS)
+
+
 class LazyGroup(TyperGroup):
-    """The root group: :data:`SUBCOMMANDS` are imported when first asked for."""
+    """The root group: :data:`SUBCOMMANDS` are imported when first asked for; plugins' commands
+    when a name is not built in, or for the list."""
 
     def list_commands(self, ctx: Any) -> list[str]:
-        return [*SUBCOMMANDS, *(n for n in super().list_commands(ctx) if n not in SUBCOMMANDS)]
+        names = [*SUBCOMMANDS, *(n for n in super().list_commands(ctx) if n not in SUBCOMMANDS)]
+        try:
+            added = self._plugin_commands()
+        except AmorError:  # e.g. two plugins register one name: the commands that use plugins say so
+            added = {}
+        return [*names, *sorted(n for n in added if n not in names)]
 
     def get_command(self, ctx: Any, cmd_name: str) -> Any:
-        if cmd_name in SUBCOMMANDS and cmd_name not in self.commands:
-            self.commands[cmd_name] = load_subcommand(cmd_name)
+        if cmd_name not in self.commands:
+            if cmd_name in SUBCOMMANDS:
+                self.commands[cmd_name] = load_subcommand(cmd_name)
+            elif cmd_name in (added := self._plugin_commands()):
+                self.commands[cmd_name] = added[cmd_name]
         return super().get_command(ctx, cmd_name)
+
+    def _plugin_commands(self) -> dict[str, Any]:
+        if not hasattr(self, "_added"):
+            self._added = plugin_commands().commands
+        return self._added
 
 
 app = typer.Typer(
@@ -97,13 +126,27 @@ def main(argv: list[str] | None = None) -> int:
     return run_app(app, "amorctl", argv)
 
 
+def _show_warning(previous: Any, message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    """Print an :class:`AmorWarning` as one ``warning:`` line on stderr (an :class:`AmorNote` as a
+    ``note:`` line); others as before."""
+    if issubclass(category, AmorWarning):
+        print(f"{'note' if issubclass(category, AmorNote) else 'warning'}: {message}", file=sys.stderr)
+    else:
+        previous(message, category, *args, **kwargs)
+
+
 def run_app(typer_app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> int:
     """Run ``typer_app`` with amorctl's error convention and return the exit status: an
     :class:`AmorError` prints one ``error:`` line (its exit code), Ctrl-C prints ``interrupted``
-    (130), anything else one line (1); ``AMORCTL_DEBUG=1`` re-raises for the traceback."""
+    (130), anything else one line (1); ``AMORCTL_DEBUG=1`` re-raises for the traceback. An
+    :class:`AmorWarning` prints one ``warning:`` line on stderr and the command goes on."""
     debug = os.environ.get("AMORCTL_DEBUG", "") not in ("", "0")
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
-        typer_app(args=argv, prog_name=prog_name)  # standalone mode: usage errors exit 2 via SystemExit
+        with warnings.catch_warnings(), json_stdout("--json" in args):
+            warnings.simplefilter("default", AmorWarning)  # each message once per command
+            warnings.showwarning = functools.partial(_show_warning, warnings.showwarning)
+            typer_app(args=args, prog_name=prog_name)  # standalone: usage errors exit 2 via SystemExit
     except SystemExit as exit_:
         code = exit_.code
         return code if isinstance(code, int) else (0 if code is None else 1)
@@ -118,6 +161,10 @@ def run_app(typer_app: typer.Typer, prog_name: str, argv: list[str] | None = Non
     except Exception as exc:  # anything unexpected: one line unless debugging
         if debug:
             raise
+        refused = storage_error(exc) if isinstance(exc, OSError) and exc.errno in WRITE_ERRNOS else None
+        if refused is not None:  # a write the disk refused outside an atomic write (a log, a CSV)
+            print(f"error: {refused}", file=sys.stderr)
+            return refused.exit_code
         print(
             f"error: unexpected {type(exc).__name__}: {exc} (set AMORCTL_DEBUG=1 for a traceback)",
             file=sys.stderr,

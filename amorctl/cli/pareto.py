@@ -24,7 +24,6 @@ from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
-from amorctl.motion.heldout import config_with_dataset
 from amorctl.train import distributed
 from amorctl.train.rundir import RunDir
 
@@ -100,7 +99,8 @@ def pareto(
     if episodes < 1:
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
     opened = RunDir.open(run)
-    policy, config = opened.policy(), config_with_dataset(opened.config, data)
+    config = opened.config_for_data(data)  # the run's dataset, moved or held-out clips
+    policy = opened.policy()
     if coverage:  # weight coverage of the simplex (amorctl.cli.pareto_coverage)
         from amorctl.cli.pareto_coverage import coverage_command
 

@@ -1,5 +1,6 @@
-"""``amorctl plugins``: what is installed, by name, kind, package and version; ``plugins new``
-writes a ready plugin package."""
+"""``amorctl plugins``: what is installed, by name, kind, package and version (commands that
+plugins add too), and every plugin that is blocked, broken or uses a deprecated import path;
+``plugins new`` writes a ready plugin package."""
 
 from __future__ import annotations
 
@@ -15,20 +16,25 @@ from amorctl.cli.output import console, print_json
 from amorctl.registry import get_registry
 
 app = typer.Typer(
-    help="List installed plugins (characters, objective sets, backends, motion formats); `new` writes one.",
+    help="List installed plugins (characters, objective sets, backends, motion formats, commands); "
+    "`new` writes one.",
     invoke_without_command=True,
 )
 
 
 @app.callback()
 def plugins(ctx: typer.Context, json_out: JsonFlag = False) -> None:
-    """List installed plugins (characters, objective sets, backends, motion formats) and any that failed."""
+    """List installed plugins (characters, objective sets, backends, motion formats, commands) and
+    any that failed or use a deprecated import path."""
     if ctx.invoked_subcommand is not None:
         return
+    from amorctl.cli.main import plugin_commands
+
     registry = get_registry()
     rows = sorted(registry.provided, key=lambda p: (p.kind, p.name))
+    problems = [*registry.problems, *plugin_commands().problems, *registry.deprecated]
     if json_out:
-        print_json({"plugins": [asdict(p) for p in rows], "problems": [asdict(p) for p in registry.problems]})
+        print_json({"plugins": [asdict(p) for p in rows], "problems": [asdict(p) for p in problems]})
         return
     table = Table(title="amorctl plugins")
     for col in ("name", "kind", "package", "version"):
@@ -36,7 +42,7 @@ def plugins(ctx: typer.Context, json_out: JsonFlag = False) -> None:
     for p in rows:
         table.add_row(p.name, p.kind, p.package, p.version)
     console.print(table)
-    for prob in registry.problems:
+    for prob in problems:
         detail = f": {prob.error}" if prob.error else ""
         console.print(
             f"[yellow]{prob.status}[/yellow] plugin {prob.plugin!r} from package "

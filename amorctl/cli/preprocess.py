@@ -138,6 +138,8 @@ def _print_report(report: PreprocessReport) -> None:
                 f"{c['lower_foot_hover_max']:.3f} m, feet slide {c['foot_sliding']:.3f} m/s in contact",
                 highlight=False,
             )
+        for note in c.get("notes", ()):  # what the importer left out, e.g. npz velocities it recomputes
+            console.print(f"note: {c['name']}: {note}", highlight=False, soft_wrap=True)
     if report.vae:
         v = report.vae
         console.print(

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -21,7 +22,7 @@ from rich.text import Text
 from amorctl.cli.live_view import TrainingView, fmt, fmt_time
 from amorctl.cli.output import console, print_json
 from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
-from amorctl.core.errors import AmorError
+from amorctl.core.errors import AmorError, AmorWarning
 from amorctl.core.vecenv import VectorEnv
 from amorctl.core.weights import parse_weight_pairs
 from amorctl.train import distributed
@@ -141,14 +142,21 @@ def _resolve_config(
 def _resume_config(
     out: Path, preset: str | None, config_file: Path | None, overrides: dict[str, dict[str, Any]]
 ) -> TrainConfig:
-    """The run's own config; only ``--iterations`` may change, anything else must agree."""
+    """The run's own config; only ``--iterations`` may change, anything else must agree (``--data``:
+    the run's dataset, as stored or moved: the same SHA-256, ``RunDir.relocate_dataset``)."""
     if preset is not None or config_file is not None:
         raise AmorError("--resume continues with the run's own config.toml; drop --preset/--config")
-    config = RunDir(out).config
+    run = RunDir(out)
+    config = run.config
     for section, values in overrides.items():
         for key, value in values.items():
             if section == "run" and key == "iterations":
                 continue
+            if (section, key) == ("env", "dataset") and Path(value).is_file():
+                same = Path(value).resolve() == Path(config.env.dataset).resolve()
+                if same or run.relocate_dataset(value):
+                    config = run.config
+                    continue
             current = getattr(getattr(config, section), key)
             if value != current:
                 raise AmorError(
@@ -309,6 +317,7 @@ def _train_here(
         return 0
     if not world.is_main:
         json_out = True  # no live view
+        warnings.simplefilter("ignore", AmorWarning)  # rank 0 says it once (run_app restores this)
 
     display = _Display(out, config, live=console.is_terminal and not json_out)
     if config.env.kind == "tracking" and not json_out and world.is_main:

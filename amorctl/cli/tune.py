@@ -13,6 +13,7 @@ from rich.table import Table
 from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
+from amorctl.core.live_auth import check_bind
 
 
 def _check_outputs(paths: list[Path | None]) -> None:
@@ -88,6 +89,16 @@ def tune(
         "127.0.0.1"
     ),
     port: Annotated[int, typer.Option("--port", help="Port of the live page.")] = 8080,
+    token: Annotated[
+        str | None,
+        typer.Option(
+            "--token",
+            envvar="AMORCTL_TOKEN",
+            show_envvar=True,
+            help="Shared token of the live page: needed with a --host beyond loopback; the page's URL "
+            "then carries it (prefer the environment variable, a flag shows in `ps`).",
+        ),
+    ] = None,
     save_to: Annotated[
         Path, typer.Option("--save-to", help="Live page: where 'save schedule' writes the keyframes.")
     ] = Path("tune-schedule.toml"),
@@ -105,10 +116,12 @@ def tune(
     from amorctl.core.weights import parse_weights
     from amorctl.tune.session import PinnedMotion, run_tune
 
+    if live:  # before any work: beyond loopback only with a token (docs/tune.md, "Security")
+        token = check_bind(host, token, f"--live --host {host}")
     if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
         _tune_with_hlp(
             run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, data, live, host, port,
-            save_to, out, plot, video, json_,
+            save_to, out, plot, video, json_, token,
         )  # fmt: skip
         if live:
             from amorctl.tune.live import end_live_process
@@ -129,8 +142,9 @@ def tune(
 
             session = LiveSession(tenv, w0, save_to=save_to)
             serve_live(
-                session, host=host, port=port, announce=lambda url: err_console.print(f"live page: {url}")
-            )
+                session, host=host, port=port, token=token,
+                announce=lambda url: err_console.print(f"live page: {url}"),
+            )  # fmt: skip
             tenv.close()
             end_live_process()
         sched = None
@@ -153,7 +167,7 @@ def _tune_with_hlp(
     run: Path, hlp: Path, motion: str | None, scale: str | None, seconds: float | None,
     weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int, data: Path | None,
     live: bool, host: str, port: int, save_to: Path, out: Path | None, plot: Path | None,
-    video: Path | None, json_: bool,
+    video: Path | None, json_: bool, token: str | None = None,
 ) -> None:  # fmt: skip
     """``tune --hlp``: the HLP of ``hlp`` chooses w_t every step (``amorctl.hlp.tune``); the same
     outputs and report as with fixed weights, plus the weights it chose."""
@@ -167,7 +181,7 @@ def _tune_with_hlp(
         raise AmorError(f"--video {video}: the file must end in .mp4")
     ran = tune_with_hlp(
         run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
-        save_to, any(p is not None for p in given),
+        save_to, any(p is not None for p in given), token,
     )  # fmt: skip
     if ran is None:  # the live page was served
         return

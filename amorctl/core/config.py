@@ -95,7 +95,12 @@ class EnvConfig:
         choices=ENV_KINDS,
     )
     character: str = _doc("biped20", "character plugin (kind=tracking)")
-    dataset: str = _doc("", "motion dataset file; empty = the character's built-in default clips")
+    dataset: str = _doc(
+        "", "motion dataset file (stored absolute by train); empty = the character's built-in clips"
+    )
+    dataset_sha256: str = _doc(
+        "", "SHA-256 of the dataset file, recorded by train: --data finds the dataset if it moved"
+    )
     objective_set: str = _doc("tracking7", "objective-set plugin (kind=tracking)")
     num_envs: int = _doc(256, "environments stepped in parallel (N)", min=1, max=65536)
     episode_seconds: float = _doc(

@@ -1,4 +1,4 @@
-"""What plugins provide: character specs, objective sets, backends and motion formats.
+"""What plugins provide: character specs, objective sets, backends, motion formats and commands.
 
 These are plain frozen dataclasses (and one protocol) so that plugins stay declarative and the
 registry can describe them without running anything. Angles are radians, lengths metres,
@@ -7,6 +7,7 @@ torques N·m, rates Hz.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from amorctl.core.model_source import (  # the model-path bits; re-exported here
     package_model,
     resolve_model_source,
 )
+from amorctl.core.moved import moved_names
 
 __all__ = [
     "JOINT_GROUPS", "KEYPOINTS", "ActuatorModel", "BackendSpec", "CharacterSpec", "ImportOptions",
@@ -251,3 +253,26 @@ class MotionFormatSpec:
     suffixes: tuple[str, ...]  # lower-case, with the dot: (".bvh",)
     load: Callable[[Path, ImportOptions], Any]
     description: str = ""
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    """A subcommand a plugin adds to ``amorctl`` (a robot's calibration, a hardware bridge):
+    ``amorctl NAME ...`` runs ``command``, a ``typer.Typer`` app (one command, or a group of
+    subcommands) or a click command or group.
+
+    ``name`` is lower-case letters, digits and hyphens, and no built-in command's name;
+    ``amorctl --help`` lists it under "Plugin commands" with ``help`` (default: the command's own).
+    """
+
+    name: str
+    command: Any  # typer.Typer | click.Command: this layer imports neither
+    help: str = ""
+
+    def __post_init__(self) -> None:
+        if not re.fullmatch(r"[a-z][a-z0-9-]*", self.name):
+            raise ValueError(f"command name {self.name!r}: use lower-case letters, digits and hyphens")
+
+
+# 0.1.0 plugins imported Backend from here (core/moved.py)
+__getattr__ = moved_names(__name__, {"Backend": "amorctl.core.contracts"})

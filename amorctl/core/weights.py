@@ -102,6 +102,37 @@ def normalize_weights(raw: np.ndarray, *, source: str = "weights") -> np.ndarray
     return scaled / scaled.sum(axis=-1, keepdims=True)
 
 
+#: How far a row of weights may sum from 1 (float32 rounding of a Dirichlet draw is ~1e-7).
+SIMPLEX_ATOL = 1e-4
+
+
+def check_simplex_rows(w: np.ndarray, source: str = "weights") -> None:
+    """Raise unless every row of ``w`` [..., m] lies on the simplex (finite, >= 0, sum 1).
+
+    Raises:
+        AmorError: ``"<source>: row i holds <what was found> (<the row>); weights must be finite,
+            >= 0 and sum to 1"`` (without ``row i`` for one vector [m]).
+    """
+    w = np.asarray(w, dtype=np.float64)
+    rows = w.reshape(-1, w.shape[-1]) if w.ndim else w.reshape(1, 1)
+    finite = np.isfinite(rows).all(axis=1)
+    negative = (rows < 0).any(axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        off = ~(np.abs(rows.sum(axis=1) - 1.0) <= SIMPLEX_ATOL)
+    bad = ~finite | negative | off
+    if not bad.any():
+        return
+    i = int(np.argmax(bad))
+    what = (
+        "NaN or inf"
+        if not finite[i]
+        else ("a negative weight" if negative[i] else f"weights summing to {rows[i].sum():.6g}")
+    )
+    shown = ", ".join(f"{x:.4g}" for x in rows[i][:8]) + (", ..." if rows.shape[1] > 8 else "")
+    row = f"row {i} " if w.ndim > 1 else ""
+    raise AmorError(f"{source}: {row}holds {what} ({shown}); weights must be finite, >= 0 and sum to 1")
+
+
 def sample_dirichlet(
     rng: np.random.Generator, n: int, m: int, alpha: float = 1.0, dtype: type = np.float32
 ) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The deploy bundle: ``policy.onnx`` + ``deploy.json`` + ``motions.npz``, read and validated.
+"""The deploy bundle: ``policy.onnx`` + ``deploy.json`` + ``motions.npz`` + ``model/``, read and validated.
 
 Torch-free (numpy, mujoco, onnxruntime and the standard library): the runtime and robot-side
 tools read bundles through this module. The format, every metadata key and the ONNX signature
@@ -8,7 +8,10 @@ Validation on read (each failure is one AmorError naming the file): ``deploy.jso
 every key of :data:`METADATA_KEYS` and this :data:`FORMAT`; ``policy.onnx`` loads in onnxruntime,
 has the inputs and outputs ``deploy.json`` lists and carries the same metadata (JSON-encoded, in
 ``metadata_props``); ``motions.npz`` matches its recorded SHA-256 and shapes; and, for a character
-bundle, the installed character's compiled model hashes to ``model_sha256``.
+bundle, every file of ``model/`` (the character's MJCF, the files it reads and its licence, copied
+at export) is there and the model compiled from them hashes to ``model_sha256``. The runtime
+simulates that copy: nothing outside the bundle is read. (Bundles exported by earlier versions
+point at the model inside the installed plugin package instead, ``plugin_module``; they still read.)
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ FORMAT = "amorctl-deploy/1"
 ONNX_FILE = "policy.onnx"
 META_FILE = "deploy.json"
 MOTIONS_FILE = "motions.npz"
+#: folder of the bundle holding the character's model files (``character_model["mjcf"]`` is in it).
+MODEL_DIR = "model"
 #: ONNX opset of every exported policy (fixed, so robot-side runtimes know what to support).
 OPSET = 17
 #: observation parts that are motion context: each becomes its own ONNX input.
@@ -87,11 +92,67 @@ def part_element_names(
 # ---------------------------------------------------------------------------- the character
 
 
+#: ``MjModel`` fields that say where the asset files were found (and the buffer size that holds
+#: those paths), not what the model is.
+_LOCATION_FIELDS = ("paths", "npaths", "nbuffer")
+
+
+def _digest_fields(digest: Any, obj: Any, prefix: str, depth: int) -> None:
+    """Feed every public number, string and array of a MuJoCo struct (nested structs to ``depth``),
+    by sorted name, into ``digest``; the asset locations (:data:`_LOCATION_FIELDS`, ``*_pathadr``)
+    are left out."""
+    for name in sorted(dir(obj)):
+        if name.startswith("_") or name in _LOCATION_FIELDS or name.endswith("pathadr"):
+            continue
+        value = getattr(obj, name)
+        key = f"{prefix}{name}".encode()
+        if isinstance(value, np.ndarray):
+            digest.update(key + str(value.dtype).encode() + str(value.shape).encode())
+            digest.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, (bool, int, float, str, bytes)):
+            digest.update(key + b"=" + repr(value).encode())
+        elif not callable(value) and depth > 0:
+            _digest_fields(digest, value, f"{prefix}{name}.", depth - 1)
+
+
 def model_sha256(model: mujoco.MjModel) -> str:
-    """SHA-256 of a compiled model's binary (MJB) form: equal models give equal hashes."""
+    """SHA-256 of a compiled model: every size, option and array of it (names, masses, geometry,
+    mesh vertices, actuators, ...), by field name, except where its asset files were found on disk
+    (MuJoCo keeps their absolute paths), so the same model compiled from another directory (a
+    bundle's copy) hashes the same. Equal models give equal hashes for one MuJoCo version."""
+    digest = hashlib.sha256(f"mujoco {mujoco.__version__}\n".encode())
+    _digest_fields(digest, model, "", depth=2)
+    return digest.hexdigest()
+
+
+def mjb_sha256(model: mujoco.MjModel) -> str:
+    """SHA-256 of a compiled model's binary (MJB) form, asset paths included: what bundles
+    exported before models were copied into them record as ``model_sha256``."""
     buf = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
     mujoco.mj_saveModel(model, None, buf)
     return hashlib.sha256(buf.tobytes()).hexdigest()
+
+
+def bundled_mjcf(path: Path, character_model: dict[str, Any]) -> Path:
+    """The MJCF the bundle at ``path`` simulates: its own copy (``character_model["mjcf"]``,
+    relative to the bundle, every file of ``model_files`` present), or, for a bundle exported
+    before models were copied (``plugin_module``), the installed plugin's file."""
+    if "plugin_module" in character_model and "model_files" not in character_model:
+        return installed_mjcf(character_model)
+    missing = [rel for rel in character_model.get("model_files", {}) if not (path / rel).is_file()]
+    if missing:
+        raise AmorError(
+            f"{path / missing[0]}: missing from the bundle ({len(missing)} model file(s)): copy the whole "
+            "bundle directory, or export it again"
+        )
+    mjcf = path / str(character_model.get("mjcf", ""))
+    if not mjcf.is_file():
+        raise AmorError(f"{mjcf}: the bundle's model file is missing: export the bundle again")
+    return mjcf
+
+
+#: What to do when an old bundle's installed character is missing.
+_REEXPORT = ": install it, or export the bundle again (bundles now carry their model)"
 
 
 def installed_mjcf(character_model: dict[str, Any]) -> Path:
@@ -103,16 +164,16 @@ def installed_mjcf(character_model: dict[str, Any]) -> Path:
     except (ImportError, ValueError):
         found = None
     if found is None:
-        raise AmorError(f"character plugin module {module!r} is not installed")
+        raise AmorError(f"character plugin module {module!r} is not installed{_REEXPORT}")
     if found.submodule_search_locations:
         base = Path(next(iter(found.submodule_search_locations)))
     elif found.origin:
         base = Path(found.origin).parent
     else:
-        raise AmorError(f"character plugin module {module!r} has no files")
+        raise AmorError(f"character plugin module {module!r} has no files{_REEXPORT}")
     path = base / str(character_model.get("mjcf", ""))
     if not path.is_file():
-        raise AmorError(f"{path}: the installed character has no model file there")
+        raise AmorError(f"{path}: the installed character has no model file there{_REEXPORT}")
     return path
 
 
@@ -152,11 +213,12 @@ def character_spec(meta: dict[str, Any], mjcf_path: Path) -> CharacterSpec:
     )
 
 
-def compiled_model_hash(spec: CharacterSpec) -> str:
-    """Hash of the character's MJCF compiled as :func:`amorctl.sim.model.load_model` compiles it."""
+def compiled_model_hash(spec: CharacterSpec, *, legacy: bool = False) -> str:
+    """Hash (:func:`model_sha256`; ``legacy``: :func:`mjb_sha256`) of the character's MJCF compiled as
+    :func:`amorctl.sim.model.load_model` compiles it."""
     from amorctl.sim.model import load_model
 
-    return model_sha256(load_model(spec))
+    return (mjb_sha256 if legacy else model_sha256)(load_model(spec))
 
 
 # ---------------------------------------------------------------------------- motions
@@ -295,7 +357,7 @@ def open_session(onnx_path: Path, threads: int = 1) -> Any:
 
 def read_bundle(path: str | Path, *, check_model: bool = True) -> Bundle:
     """Read and validate a bundle (see the module docstring). ``check_model=False`` skips the
-    installed-character check (reading a bundle on a machine without the character)."""
+    compiled-model hash check (faster; the model files are still required)."""
     path = Path(path)
     meta = read_meta(path)
     onnx_path = path / ONNX_FILE
@@ -317,14 +379,14 @@ def read_bundle(path: str | Path, *, check_model: bool = True) -> Bundle:
         motions = load_motions(path / meta["motions"]["file"], meta["motions"]["sha256"])
     spec = None
     if meta["character"] is not None:
-        mjcf = installed_mjcf(meta["character_model"])
+        mjcf = bundled_mjcf(path, meta["character_model"])
         spec = character_spec(meta, mjcf)
         if check_model:
-            installed = compiled_model_hash(spec)
-            if installed != meta["model_sha256"]:
+            compiled = compiled_model_hash(spec, legacy="model_files" not in meta["character_model"])
+            if compiled != meta["model_sha256"]:
                 raise AmorError(
-                    f"{path / META_FILE}: model_sha256 {meta['model_sha256'][:12]}… differs from the "
-                    f"installed character {meta['character']!r} ({installed[:12]}…, {mjcf}); the bundle "
-                    "was exported for another version of the character"
+                    f"{path / META_FILE}: model_sha256 {meta['model_sha256'][:12]}… differs from the model "
+                    f"it runs ({compiled[:12]}…, {mjcf}): its model files were altered, or (an old bundle) "
+                    f"the installed character {meta['character']} changed since export; export it again"
                 )
     return Bundle(path=path, meta=meta, session=session, motions=motions, spec=spec)

@@ -15,7 +15,6 @@ temporary directory and renamed into place only after onnxruntime reproduces the
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import shutil
@@ -37,13 +36,12 @@ from amorctl.core.weights import sample_dirichlet
 from amorctl.deploy.bundle import (
     CONTEXT_PARTS,
     META_FILE,
-    MOTIONS_FILE,
     ONNX_FILE,
     OPSET,
     open_session,
     part_element_names,
 )
-from amorctl.deploy.export_meta import bundle_metadata, motions_arrays
+from amorctl.deploy.export_meta import bundle_metadata, copy_model, write_motions
 from amorctl.train.rundir import RunDir
 
 #: largest |onnxruntime - torch| the export accepts (PD targets and raw actions, rad).
@@ -65,6 +63,7 @@ class ExportResult:
     parity_max_abs: float
     parity_samples: int
     onnx_bytes: int
+    model_files: int = 0  # files of the character's model copied into the bundle (licence included)
 
 
 # ---------------------------------------------------------------------------- env facts
@@ -402,20 +401,6 @@ def _export_checked(
     return delta
 
 
-def _write_motions(folder: Path, run: RunDir, layout: Mapping[str, Any]) -> dict[str, Any]:
-    """Write the run's reference motions to ``folder/motions.npz``; return the metadata naming it.
-
-    Raises:
-        AmorError: the dataset's frames do not fit the policy's ``ref_frame`` input.
-    """
-    arrays = motions_arrays(run)
-    if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
-        raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
-    np.savez(folder / MOTIONS_FILE, **arrays)
-    digest = hashlib.sha256((folder / MOTIONS_FILE).read_bytes()).hexdigest()
-    return {"file": MOTIONS_FILE, "sha256": digest, "clips": arrays["clip_names"].tolist()}
-
-
 def export_bundle(
     run_path: str | Path,
     out: str | Path,
@@ -423,16 +408,21 @@ def export_bundle(
     *,
     samples: int = PARITY_SAMPLES,
     tolerance: float = PARITY_TOLERANCE,
+    data: str | Path | None = None,
 ) -> ExportResult:
     """Export the policy of ``run_path`` (checkpoint ``iteration``, default the newest) to ``out``.
+    ``data``: where the run's dataset is now, if it moved (the same file: its SHA-256 is checked).
 
     Raises:
-        AmorError: no run or checkpoint, ``out`` exists, the policy cannot be exported, or the
-            onnxruntime/torch parity check fails (nothing is written then).
+        AmorError: no run or checkpoint, ``out`` exists, ``data`` is not the run's dataset, the
+            policy cannot be exported, or the onnxruntime/torch parity check fails (nothing is
+            written then).
     """
     out = Path(out)
     _check_out(out)
     run = RunDir.open(run_path)
+    if data is not None:
+        run.relocate_dataset(data, required="a bundle carries the clips the run trained on")
     ckpt = run.checkpoint(iteration)
     policy: Policy = run.policy_of(ckpt)
     arrays, snap_meta = neutral_arrays(policy.export_arrays())
@@ -473,7 +463,8 @@ def export_bundle(
             parity={"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
         )  # fmt: skip
         if spec is not None:
-            meta["motions"] = _write_motions(tmp, run, layout)
+            meta["motions"] = write_motions(tmp, run, layout)
+            meta["character_model"].update(copy_model(spec, tmp, meta["model_sha256"]))
         _store_metadata(onnx_path, meta)
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1) + "\n")
         umask = os.umask(0)
@@ -493,4 +484,5 @@ def export_bundle(
         parity_max_abs=delta,
         parity_samples=len(obs),
         onnx_bytes=(out / ONNX_FILE).stat().st_size,
+        model_files=len((meta.get("character_model") or {}).get("model_files", {})),
     )

@@ -1,16 +1,19 @@
 """The metadata and motions of a deploy bundle, gathered at export (docs/deploy.md lists every key).
 
 Split from :mod:`amorctl.deploy.export` (which builds and checks the ONNX graph): here the
-JSON-ready ``deploy.json`` content (also stored in the ONNX ``metadata_props``), the location of
-the character's model inside its installed plugin package, the objective set's plugin (so the
+JSON-ready ``deploy.json`` content (also stored in the ONNX ``metadata_props``), the character's
+model copied into the bundle with the files it reads and its licence (:func:`copy_model`, so the
+bundle runs wherever it is, whatever package held the model), the objective set's plugin (so the
 torch-free runtime can compute rewards) and the run's reference motions as ``motions.npz`` arrays.
 """
 
 from __future__ import annotations
 
-import importlib.util
+import dataclasses
+import hashlib
+import shutil
+from collections.abc import Mapping
 from dataclasses import asdict
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -18,33 +21,46 @@ import numpy as np
 
 from amorctl import __version__
 from amorctl.core.errors import AmorError
-from amorctl.core.specs import CharacterSpec
-from amorctl.deploy.bundle import FORMAT, OPSET, compiled_model_hash
+from amorctl.core.specs import CharacterSpec, describe_model_source
+from amorctl.deploy.bundle import FORMAT, MODEL_DIR, MOTIONS_FILE, OPSET, compiled_model_hash
 from amorctl.registry import get_registry
+from amorctl.sim.model_files import model_files
 from amorctl.train.rundir import RunDir
 
 
-def plugin_location(spec: CharacterSpec) -> dict[str, str]:
-    """The entry-point module of the character's plugin package and the MJCF path inside it."""
-    mjcf = spec.mjcf_path.resolve()
-    for ep in entry_points(group="amorctl"):
-        module = ep.value.split(":")[0]
-        try:
-            found = importlib.util.find_spec(module)
-        except (ImportError, ValueError):
-            continue
-        if found is None:
-            continue
-        base = (
-            Path(next(iter(found.submodule_search_locations)))
-            if found.submodule_search_locations
-            else Path(found.origin or ".").parent
-        ).resolve()
-        if mjcf.is_relative_to(base):
-            return {"plugin_module": module, "mjcf": str(mjcf.relative_to(base))}
-    raise AmorError(
-        f"{mjcf}: character {spec.name!r}'s model is not inside an installed amorctl plugin package"
-    )
+def copy_model(spec: CharacterSpec, folder: Path, model_sha256: str) -> dict[str, object]:
+    """Copy the character's model into ``folder/model/``: the MJCF, its includes and assets, and
+    its licence files (:func:`amorctl.sim.model_files.model_files`), keeping their layout; check
+    that the copy compiles to ``model_sha256``. Returns the ``character_model`` entries naming
+    them (paths relative to the bundle, POSIX style).
+
+    Raises:
+        AmorError: a referenced file is missing or absolute, or the copy compiles differently.
+    """
+    found = model_files(spec.mjcf_path)
+    dest = folder / MODEL_DIR
+    digests: dict[str, str] = {}
+    for src in (*found.files, *found.licences):
+        rel = found.relative(src)
+        out = dest / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, out)
+        digests[(Path(MODEL_DIR) / rel).as_posix()] = hashlib.sha256(out.read_bytes()).hexdigest()
+    mjcf = (Path(MODEL_DIR) / found.relative(found.mjcf)).as_posix()
+    copied = compiled_model_hash(dataclasses.replace(spec, mjcf_path=folder / mjcf))
+    if copied != model_sha256:
+        raise AmorError(
+            f"{found.mjcf}: copied into the bundle with the {len(found.files)} files it reads, the model "
+            f"compiles differently ({copied[:12]}… vs {model_sha256[:12]}…): it reads a file amorctl did "
+            "not find; keep every file the model uses beside it (in its directory or below)"
+        )
+    return {
+        "mjcf": mjcf,
+        "model_files": digests,
+        "licence_files": [(Path(MODEL_DIR) / found.relative(p)).as_posix() for p in found.licences],
+        "licence": spec.licence,
+        "model_source": describe_model_source(spec.model_source),
+    }
 
 
 def objective_set_location(name: str | None) -> dict[str, Any] | None:
@@ -63,16 +79,7 @@ def motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
     """The run's motion library as the bundle's ``motions.npz`` arrays (docs/deploy.md)."""
     from amorctl.motion.dataset import load_dataset
 
-    cfg = run.config.env
-    if cfg.dataset:
-        path = Path(cfg.dataset)
-    else:
-        from amorctl.motion.cache import default_dataset
-
-        path = default_dataset(cfg.character)
-    if not path.is_file():
-        raise AmorError(f"{path}: the run's motion dataset is not found")
-    lib = load_dataset(path)
+    lib = load_dataset(run.dataset_path())
     out = {
         "frames": np.asarray(lib.frames, dtype=np.float32),
         "z": np.asarray(lib.z, dtype=np.float32),
@@ -84,6 +91,20 @@ def motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
     out["clip_lengths"] = lib.lengths.astype(np.int64)
     out["clip_names"] = np.array([c.name for c in lib.clips], dtype=np.str_)
     return out
+
+
+def write_motions(folder: Path, run: RunDir, layout: Mapping[str, Any]) -> dict[str, Any]:
+    """Write the run's reference motions to ``folder/motions.npz``; return the metadata naming it.
+
+    Raises:
+        AmorError: the dataset's frames do not fit the policy's ``ref_frame`` input.
+    """
+    arrays = motions_arrays(run)
+    if arrays["frames"].shape[1] != layout["ref_frame"][1] - layout["ref_frame"][0]:
+        raise AmorError("the run's dataset frames do not fit the policy's ref_frame input")
+    np.savez(folder / MOTIONS_FILE, **arrays)
+    digest = hashlib.sha256((folder / MOTIONS_FILE).read_bytes()).hexdigest()
+    return {"file": MOTIONS_FILE, "sha256": digest, "clips": arrays["clip_names"].tolist()}
 
 
 def _action_meta(action_mode: str, out_name: str, ref: tuple[int, int, int] | None, clamp: bool, units: bool):
@@ -146,8 +167,7 @@ def bundle_metadata(
         "character": spec.name if spec else None,
         "model_sha256": compiled_model_hash(spec) if spec else None,
         "character_model": (
-            {
-                **plugin_location(spec),
+            {  # copy_model adds where the model is in the bundle, once it is written
                 "root_body": spec.root_body,
                 "end_effectors": list(spec.end_effectors),
                 "joint_groups": [j.group for j in spec.joints],

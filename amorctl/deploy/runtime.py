@@ -105,6 +105,7 @@ class EpisodeResult:
     dynamics: dict[str, Any] = field(default_factory=dict)
     records: list[TickRecord] = field(default_factory=list)
     returns: dict[str, float] | None = None
+    late_ticks: int | None = None  # realtime: ticks whose targets were decided after their deadline
 
     @property
     def survived(self) -> bool:
@@ -122,6 +123,8 @@ class EpisodeResult:
             "joint_mae_deg": self.joint_mae_deg,
             "action_rate": self.action_rate,
             "held_steps": self.held_steps,
+            "late_ticks": self.late_ticks,
+            "on_time": None if self.late_ticks is None else 1.0 - self.late_ticks / max(self.steps, 1),
             "policy_ms_median": float(np.median(ms)),
             "policy_ms_p99": float(np.percentile(ms, 99)),
             "events": [e.to_dict() for e in self.events if e.kind != "push"],
@@ -148,6 +151,7 @@ class _Episode:
     motion_steps: int = 0
     misses: int = 0
     held_steps: int = 0
+    late_ticks: int = 0
     latched: bool = False
     stale_now: bool = False
     diverged: bool = False
@@ -303,6 +307,7 @@ class Runtime:
         ep = _Episode(record=record, reward_sum=np.zeros(self.m))
         if live is not None:
             live.on_reject = lambda msg: self._emit(ep, Event(ep.t, "rejected_input", msg))
+            live.budget_s = min(live.budget_s, 0.25 * self.dt)  # a flood cannot eat the tick
         start = self.clock()
         for k in range(n_steps):
             ep.t = t_now = k * self.dt
@@ -312,8 +317,8 @@ class Runtime:
             if self.realtime:
                 tick_start = start + k * self.dt
                 wait = tick_start - self.clock()
-                if wait > 0:
-                    self.sleep(wait)
+                if wait > 0:  # idle: a live input reads what arrives meanwhile
+                    (live.wait if live is not None else self.sleep)(wait)
                 deadline = tick_start + self.dt
             w = self._tick_weights(ep, weights, live, name)
             hold = ep.latched or ep.stale_now
@@ -322,6 +327,8 @@ class Runtime:
                 hold = True
                 target = self.target_prev.copy()
                 ep.held_steps += 1
+            if deadline is not None and self.clock() > deadline:
+                ep.late_ticks += 1
             self.pending.append(target)
             sent = self.pending[0]
             self._maybe_push(ep)
@@ -451,7 +458,8 @@ class Runtime:
             policy_ms=ep.policy_ms,
             events=ep.events,
             held_steps=ep.held_steps,
-            input=None if live is None else live.stats.to_dict(),
+            late_ticks=ep.late_ticks if self.realtime else None,
+            input=None if live is None else live.report(),
             dynamics=dynamics,
             records=ep.records,
             returns=None

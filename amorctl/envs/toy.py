@@ -25,6 +25,7 @@ import numpy as np
 from amorctl.core.contracts import Snapshot
 from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weights import check_simplex_rows
 
 TOY_REWARD_SPACE = RewardSpace(
     names=("right", "left"),
@@ -108,7 +109,8 @@ class _ToyEnv(ABC):
         return Snapshot({k: v.copy() for k, v in arrays.items()}, {"rng": self.rand.state()})
 
     def set_state(self, state: Snapshot) -> None:
-        """Restore :meth:`get_state`."""
+        """Restore :meth:`get_state`; AmorError if a row of weights ``w`` is off the simplex."""
+        check_simplex_rows(state.arrays["w"], "env snapshot array 'w'")
         self.rand = restore_random(state.meta["rng"])
         self.s = state.arrays["s"].copy()
         setattr(self, self.second, state.arrays[self.second].copy())

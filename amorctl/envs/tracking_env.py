@@ -26,6 +26,7 @@ from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features,
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
+from amorctl.core.weights import check_simplex_rows
 from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
@@ -341,7 +342,8 @@ class TrackingEnv:
 
         Raises:
             AmorError: an array is missing or of another shape (another character, env count or
-                objective set), or the clip selection does not fit the library.
+                objective set), a row of weights is off the simplex (NaN, negative, not summing
+                to 1), or the clip selection does not fit the library.
         """
         restored = {}
         for name in self.SNAPSHOT_ARRAYS:
@@ -354,6 +356,7 @@ class TrackingEnv:
                     f"env snapshot array {key!r} has shape {value.shape}, expected {current.shape}"
                 )
             restored[name] = np.array(value, dtype=current.dtype)
+        check_simplex_rows(restored["_weights"], "env snapshot array 'weights'")
         meta = state.meta
         self.select_clips(meta.get("valid_clips"), meta.get("env_clips"), meta.get("from_start", False))
         self.sim.restore({k[len("sim/") :]: v for k, v in state.arrays.items() if k.startswith("sim/")})
@@ -429,8 +432,9 @@ class TrackingEnv:
 
 def _check_weights(w: np.ndarray, m: int) -> np.ndarray:
     w = np.asarray(w, dtype=np.float64).reshape(-1)
-    if w.shape != (m,) or not np.isfinite(w).all() or (w < 0).any() or abs(w.sum() - 1.0) > 1e-4:
+    if w.shape != (m,):
         raise AmorError(f"fixed weights must be {m} non-negative numbers summing to 1, got {w.tolist()}")
+    check_simplex_rows(w, "fixed weights")
     return w.astype(np.float32)
 
 

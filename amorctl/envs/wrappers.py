@@ -10,6 +10,7 @@ from amorctl.core.contracts import tracking_view
 from amorctl.core.env_random import Seed
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv
+from amorctl.core.weights import check_simplex_rows
 
 
 class FixedWeights:
@@ -45,8 +46,7 @@ class FixedWeights:
             w = np.broadcast_to(w, (n, w.shape[0]))
         if w.shape != (n, m):
             raise AmorError(f"weights have shape {tuple(np.shape(weights))}; expected ({m},) or ({n}, {m})")
-        if not np.isfinite(w).all() or (w < 0).any() or np.abs(w.sum(axis=1) - 1.0).max() > 1e-4:
-            raise AmorError("weights must be finite, non-negative and sum to 1 in every row")
+        check_simplex_rows(w)
         self._tiled[:] = w
 
     def __getattr__(self, name: str) -> Any:

@@ -93,6 +93,8 @@ def serve_hlp_live(
     host: str = "127.0.0.1",
     port: int = 8080,
     announce: Callable[[str], None] | None = None,
+    token: str | None = None,
 ) -> None:
-    """Serve ``session`` on the HLP's live page until interrupted (Ctrl-C)."""
-    serve_live(session, host=host, port=port, announce=announce, app_class=HlpLiveApp)
+    """Serve ``session`` on the HLP's live page until interrupted (Ctrl-C); beyond loopback only
+    with a shared ``token`` (:func:`amorctl.tune.live.serve_live`)."""
+    serve_live(session, host=host, port=port, announce=announce, app_class=HlpLiveApp, token=token)

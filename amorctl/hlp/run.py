@@ -22,8 +22,9 @@ import numpy as np
 import torch
 
 from amorctl.core.contracts import Policy, tracking_view
+from amorctl.core.dir_lock import writing_into
 from amorctl.core.errors import AmorError
-from amorctl.core.files import atomic_path, atomic_write_text
+from amorctl.core.files import atomic_path, atomic_write_text, file_sha256
 from amorctl.envs.wrappers import FixedWeights
 from amorctl.hlp.config import HlpConfig, load_hlp_config, to_toml
 from amorctl.hlp.rewards import DiscriminatorReward, ObjectiveReward, RewardSource
@@ -50,14 +51,6 @@ MATCH_KEYS = ("character", "objectives", "obs_dim", "observation_layout")
 CHECKPOINT_KEYS = ("backend", "env_kind", "action_dim", *MATCH_KEYS)
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def policy_fingerprint(policy: Policy) -> str:
     """SHA-256 over the frozen policy's parameters (``export_arrays``; else its torch modules)."""
     digest = hashlib.sha256()
@@ -76,16 +69,11 @@ def policy_fingerprint(policy: Policy) -> str:
 
 
 def run_dataset(run: RunDir) -> Any:
-    """The run's motion library (its ``env.dataset``, or the character's built-in cache)."""
-    from amorctl.motion.cache import default_dataset
+    """The run's motion library (:meth:`RunDir.dataset_path`: its ``env.dataset``, or the
+    character's built-in cache)."""
     from amorctl.motion.dataset import load_dataset
 
-    path = (
-        Path(run.config.env.dataset) if run.config.env.dataset else default_dataset(run.config.env.character)
-    )
-    if not path.is_file():
-        raise AmorError(f"{path}: the run's motion dataset is not there any more")
-    return load_dataset(path)
+    return load_dataset(run.dataset_path())
 
 
 def resolve_motions(view: Any, motions: tuple[str, ...] | list[str]) -> list[int] | None:
@@ -318,62 +306,67 @@ def train_hlp(
     Raises:
         AmorError: the run has no checkpoint; ``out`` holds an HLP already (without ``resume``),
             holds none (with it), or belongs to a run of another character / objective set /
-            observation layout; an unknown motion. Nothing is written then.
+            observation layout; an unknown motion; ``out`` is read-only or another process
+            trains into it (its lock, :mod:`amorctl.core.dir_lock`). Nothing is written then.
     """
-    hd, config, ckpt, llp_copy = _open_out(run_path, out, config, resume)
-    if config.run.threads > 0:
-        torch.set_num_threads(config.run.threads)
-    s = setup(run_path, config, llp_checkpoint=llp_copy)
+    out = Path(out)
     if resume:
-        hd.check_matches(s.meta, f"run {s.run.path}")
-    reward = make_reward(s, config)
-    trainer = HlpTrainer(s.env, s.llp, config, reward)
-    before = policy_fingerprint(s.llp)
-    start = 0
-    meta = _hlp_meta(s, config, before)
-    if ckpt is not None:
-        trainer.load_state_dict(ckpt.trainer)
-        if ckpt.env is not None:
-            s.env.set_state(ckpt.env)
-        start = ckpt.iteration
-    else:
-        hd.path.mkdir(parents=True, exist_ok=True)
-        copy_llp_checkpoint(s.llp_checkpoint, hd.llp_dir)
-        atomic_write_text(hd.config_path, to_toml(config))
-        atomic_write_text(hd.meta_path, json.dumps(meta, indent=1, sort_keys=True) + "\n")
+        HlpDir.open(out)  # a missing HLP is named before a lock file is made for it
+    with writing_into(out, "HLP directory", "make it writable or choose another --out"):
+        hd, config, ckpt, llp_copy = _open_out(run_path, out, config, resume)
+        if config.run.threads > 0:
+            torch.set_num_threads(config.run.threads)
+        s = setup(run_path, config, llp_checkpoint=llp_copy)
+        if resume:
+            hd.check_matches(s.meta, f"run {s.run.path}")
+        reward = make_reward(s, config)
+        trainer = HlpTrainer(s.env, s.llp, config, reward)
+        before = policy_fingerprint(s.llp)
+        start = 0
+        meta = _hlp_meta(s, config, before)
+        if ckpt is not None:
+            trainer.load_state_dict(ckpt.trainer)
+            if ckpt.env is not None:
+                s.env.set_state(ckpt.env)
+            start = ckpt.iteration
+        else:
+            hd.path.mkdir(parents=True, exist_ok=True)
+            copy_llp_checkpoint(s.llp_checkpoint, hd.llp_dir)
+            atomic_write_text(hd.config_path, to_toml(config))
+            atomic_write_text(hd.meta_path, json.dumps(meta, indent=1, sort_keys=True) + "\n")
 
-    total = config.run.iterations
-    snapshot = callable(getattr(s.env, "get_state", None))
+        total = config.run.iterations
+        snapshot = callable(getattr(s.env, "get_state", None))
 
-    def checkpoint(iteration: int) -> Path:
-        env_state = s.env.get_state() if snapshot else None
-        path = save_checkpoint(
-            hd.checkpoint_dir,
-            iteration,
-            {k: meta[k] for k in CHECKPOINT_KEYS},
-            trainer.state_dict(),
-            env_state,
-        )
-        prune_checkpoints(hd.checkpoint_dir, config.run.keep_checkpoints)
-        return path
+        def checkpoint(iteration: int) -> Path:
+            env_state = s.env.get_state() if snapshot else None
+            path = save_checkpoint(
+                hd.checkpoint_dir,
+                iteration,
+                {k: meta[k] for k in CHECKPOINT_KEYS},
+                trainer.state_dict(),
+                env_state,
+            )
+            prune_checkpoints(hd.checkpoint_dir, config.run.keep_checkpoints)
+            return path
 
-    log = MetricsLog(hd.path, config.run.tensorboard, start if resume else None)
-    if on_start is not None:
-        on_start(s, start, total)
-    try:
-        iteration, last, interrupted, last_path = _iterate(
-            trainer, log, checkpoint, start, total, config.run.checkpoint_every,
-            ckpt.path if ckpt is not None else None, on_iteration, stop_after, stop_when,
-        )  # fmt: skip
-    finally:
-        log.close()
-        close = getattr(s.env, "close", None)
-        if callable(close):
-            close()
-    after = policy_fingerprint(s.llp)
-    if after != before:  # the LLP must stay frozen; this would be a bug, not a user error
-        raise RuntimeError("the frozen low-level policy's parameters changed during HLP training")
-    return HlpResult(hd.path, start, iteration, interrupted, last_path, before, after, last)
+        log = MetricsLog(hd.path, config.run.tensorboard, start if resume else None)
+        if on_start is not None:
+            on_start(s, start, total)
+        try:
+            iteration, last, interrupted, last_path = _iterate(
+                trainer, log, checkpoint, start, total, config.run.checkpoint_every,
+                ckpt.path if ckpt is not None else None, on_iteration, stop_after, stop_when,
+            )  # fmt: skip
+        finally:
+            log.close()
+            close = getattr(s.env, "close", None)
+            if callable(close):
+                close()
+        after = policy_fingerprint(s.llp)
+        if after != before:  # the LLP must stay frozen; this would be a bug, not a user error
+            raise RuntimeError("the frozen low-level policy's parameters changed during HLP training")
+        return HlpResult(hd.path, start, iteration, interrupted, last_path, before, after, last)
 
 
 def _open_out(
@@ -403,7 +396,7 @@ def _hlp_meta(s: HlpSetup, config: HlpConfig, llp_fingerprint: str) -> dict[str,
         **s.meta,
         "run": str(s.run.path.resolve()),
         "llp_iteration": llp.iteration,
-        "llp_sha256": _sha256(checkpoint_paths(llp.path.parent, llp.iteration)[0]),
+        "llp_sha256": file_sha256(checkpoint_paths(llp.path.parent, llp.iteration)[0]),
         "window": config.discriminator.window,
         "reward": config.discriminator.reward,
         "motions": list(config.env.motions),

@@ -10,12 +10,16 @@ One MCAP file holds:
   ``{"dtype": "float32", "shape": [...], "data": base64 of little-endian bytes}``;
 - attachment ``motion_vae_encoder.safetensors`` (when the VAE was trained).
 
-Integrity (version 2): the dataset record holds ``sha256``, a JSON object with the SHA-256 of every
-per-frame array (all clips concatenated, little-endian float32, C order) and of the attachment
-(``attachment:<name>``). :func:`load_dataset` checks every hash, every shape against the metadata,
-that arrays are finite, clip names unique and clips at least two frames long; a mismatch is one
-``AmorError`` naming the file and the array. Version-1 files (written before hashes existed) load
-with every check but the hashes; ``amorctl data show`` says they are unverified.
+Integrity (version 3): the dataset record holds ``sha256``, a JSON object with the SHA-256 of every
+per-frame array (all clips concatenated, little-endian float32, C order), of the attachment
+(``attachment:<name>``) and of the metadata (``metadata``: every other key of the dataset record
+and every clip message but its arrays, :func:`~amorctl.motion.dataset_schema.metadata_sha256`).
+:func:`load_dataset` checks every hash, every shape against the metadata, that arrays are finite
+and within the importers' plausibility bound, clip names unique and clips at least two frames
+long; a mismatch is one ``AmorError`` naming the file and the array. Version-2 files (no metadata
+hash) load with every check but that one; version-1 files (written before hashes existed) load
+with every check but the hashes and an :class:`~amorctl.core.errors.AmorWarning`; ``amorctl data
+show`` says what was not verified.
 
 The format (names, schema, checks) is in :mod:`amorctl.motion.dataset_schema`, the reader in
 :mod:`amorctl.motion.dataset_read`; this module writes datasets and is where callers import from.
@@ -34,7 +38,7 @@ from mcap.writer import CompressionType, Writer
 
 from amorctl import __version__
 from amorctl.core.files import atomic_path
-from amorctl.motion.clips import MotionLibrary
+from amorctl.motion.clips import ClipInfo, MotionLibrary
 from amorctl.motion.dataset_read import (
     load_clip_stats,
     load_dataset,
@@ -47,11 +51,13 @@ from amorctl.motion.dataset_schema import (
     ENCODER_ATTACHMENT,
     FORMAT,
     HASHES_KEY,
+    METADATA_HASH,
     SCHEMA,
     SCHEMA_NAME,
     VERSION,
     array_sha256,
     check_library,
+    metadata_sha256,
 )
 
 # write_dataset looks the codec up here, so a test can swap it to write a corrupt file
@@ -114,24 +120,31 @@ def write_dataset(
         # computed keys win over stale copies carried in library.metadata (e.g. a clip subset)
         extra = {k: v for k, v in library.metadata.items() if k not in own and k not in meta}
         meta.update({k: v if isinstance(v, str) else json.dumps(v) for k, v in extra.items()})
+        # each clip message but its arrays, as a reader will parse it back from the JSON
+        infos = [
+            json.loads(json.dumps({**_clip_info(clip), "stats": clip_stats.get(clip.name, {})}))
+            for clip in library.clips
+        ]
+        hashes[METADATA_HASH] = metadata_sha256(meta, infos)
         meta[HASHES_KEY] = json.dumps(hashes)
         writer.add_metadata("amorctl.dataset", meta)
         schema = writer.register_schema(SCHEMA_NAME, "jsonschema", json.dumps(SCHEMA).encode())
         channel = writer.register_channel(CHANNEL, "json", schema)
-        for k, clip in enumerate(library.clips):
-            info = asdict(clip)
-            info.pop("start")
-            writer.add_metadata("amorctl.clip", {key: str(v) for key, v in info.items()})
+        for k, (clip, info) in enumerate(zip(library.clips, infos, strict=True)):
+            writer.add_metadata("amorctl.clip", {key: str(v) for key, v in _clip_info(clip).items()})
             sl = slice(clip.start, clip.start + clip.num_frames)
-            msg = {
-                **info,
-                "stats": clip_stats.get(clip.name, {}),
-                "arrays": {a: _encode_array(getattr(library, a)[sl]) for a in ARRAYS},
-            }
+            msg = {**info, "arrays": {a: _encode_array(getattr(library, a)[sl]) for a in ARRAYS}}
             writer.add_message(channel, log_time=k, data=json.dumps(msg).encode(), publish_time=k, sequence=k)
         if encoder is not None:
             writer.add_attachment(0, 0, ENCODER_ATTACHMENT, "application/octet-stream", encoder)
         writer.finish()
+
+
+def _clip_info(clip: ClipInfo) -> dict[str, Any]:
+    """A clip's info as its message and ``amorctl.clip`` record store it (``start`` is implied)."""
+    info = asdict(clip)
+    info.pop("start")
+    return info
 
 
 def clip_of_frame(library: MotionLibrary, index: np.ndarray) -> np.ndarray:

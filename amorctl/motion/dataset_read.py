@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import struct
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from amorctl.core.errors import AmorError
+from amorctl.core.errors import AmorError, AmorWarning
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 from amorctl.motion.dataset_schema import (
     ARRAYS,
@@ -29,11 +30,15 @@ from amorctl.motion.dataset_schema import (
     HASHES_KEY,
     MAX_CLIP_FRAMES,
     MAX_FPS,
+    METADATA_HASH,
+    METADATA_HASH_VERSION,
     OLDEST_VERSION,
     VERSION,
     array_sha256,
     check_library,
     decode_array,
+    expected_shapes,
+    metadata_sha256,
 )
 
 try:
@@ -139,6 +144,10 @@ def _parse_meta(path: Path, meta: dict[str, str]) -> dict[str, Any]:
             raise fail(HASHES_KEY, "is not JSON") from None
         if not isinstance(hashes, dict) or set(ARRAYS) - set(hashes):
             raise fail(HASHES_KEY, "must hold the SHA-256 of every array")
+        if version >= METADATA_HASH_VERSION and METADATA_HASH not in hashes:
+            raise fail(
+                HASHES_KEY, f"lacks the SHA-256 of the metadata ({METADATA_HASH!r}) of version {version}"
+            )
     elif version >= 2:
         raise AmorError(
             f"{path}: dataset metadata lacks the content hashes ('{HASHES_KEY}') of version {version}"
@@ -205,17 +214,28 @@ def load_dataset(path: str | Path) -> MotionLibrary:
     f, reader = _open_reader(path)
     parts: dict[str, list[np.ndarray]] = {a: [] for a in ARRAYS}
     clips: list[ClipInfo] = []
+    messages: list[dict[str, Any]] = []  # each clip message but its arrays, for the metadata hash
     attachments: dict[str, bytes] = {}
     start = 0
+    shapes = expected_shapes(
+        len(info["joint_names"]), len(info["end_effectors"]), info["frame_dim"], info["latent_dim"]
+    )
     with f:
         try:
             for index, (_schema, _channel, message) in enumerate(reader.iter_messages(topics=[CHANNEL])):
-                clip, arrays = _clip_of(path, json.loads(message.data), index, start)
+                msg = json.loads(message.data)
+                clip, arrays = _clip_of(path, msg, index, start)
+                messages.append({k: v for k, v in msg.items() if k != "arrays"})
                 for a in ARRAYS:
                     if arrays[a].shape[:1] != (clip.num_frames,):
                         raise AmorError(
                             f"{path}: clip {clip.name!r}: array {a!r} has {arrays[a].shape[:1]} frames, "
                             f"num_frames says {clip.num_frames}"
+                        )
+                    if arrays[a].shape[1:] != shapes[a]:
+                        raise AmorError(
+                            f"{path}: clip {clip.name!r}: array {a!r} has shape {list(arrays[a].shape)}, "
+                            f"the metadata says {[clip.num_frames, *shapes[a]]}"
                         )
                     parts[a].append(arrays[a])
                 clips.append(clip)
@@ -239,16 +259,18 @@ def load_dataset(path: str | Path) -> MotionLibrary:
     flat = {a: np.concatenate(parts[a], axis=0) for a in ARRAYS}
     if info["hashes"] is not None:
         _check_hashes(path, info["hashes"], flat, attachments)
+        recorded = info["hashes"].get(METADATA_HASH)
+        if recorded is not None and recorded != metadata_sha256(meta, messages):
+            raise AmorError(
+                f"{path}: the dataset's metadata (character, fps, joint names, clip info, ...) does not "
+                "match its recorded SHA-256 (edited or corrupt; re-run preprocess)"
+            )
     extra = {
         k: _maybe_json(v)
         for k, v in meta.items()
         if k not in ("character", "fps", "joint_names", "end_effectors", HASHES_KEY)
     }
-    extra["integrity"] = (
-        {"verified": True, "sha256": info["hashes"]}
-        if info["hashes"] is not None
-        else {"verified": False, "reason": f"version {info['version']} dataset without content hashes"}
-    )
+    extra["integrity"] = _integrity(info["version"], info["hashes"])
     library = MotionLibrary(
         character=info["character"],
         fps=info["fps"],
@@ -264,7 +286,32 @@ def load_dataset(path: str | Path) -> MotionLibrary:
             f"says frame_dim {info['frame_dim']}, latent_dim {info['latent_dim']}"
         )
     check_library(library, str(path))
+    if info["hashes"] is None:  # every other check passed: the command goes on, but says so
+        warnings.warn(
+            f"{path}: version {info['version']} dataset without content hashes: its arrays and metadata "
+            "cannot be verified; re-run `amorctl preprocess` (or delete a cached copy) to add them",
+            AmorWarning,
+            stacklevel=2,
+        )
     return library
+
+
+def _integrity(version: int, hashes: dict[str, Any] | None) -> dict[str, Any]:
+    """What loading verified: ``verified`` (the arrays' hashes), ``metadata_verified`` (the
+    metadata's hash, from version 3 on), ``sha256`` (the recorded hashes) and a ``reason`` for
+    what was not verified."""
+    if hashes is None:
+        return {
+            "verified": False,
+            "metadata_verified": False,
+            "reason": f"version {version} dataset without content hashes",
+        }
+    out: dict[str, Any] = {"verified": True, "metadata_verified": METADATA_HASH in hashes, "sha256": hashes}
+    if not out["metadata_verified"]:
+        out["reason"] = (
+            f"version {version} dataset: its metadata (character, fps, clip info, ...) has no hash"
+        )
+    return out
 
 
 def _check_hashes(

@@ -8,19 +8,28 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import json
 import math
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.motion.clips import MotionLibrary
+from amorctl.motion.source import MAX_ABS_VALUE, implausible
 
 FORMAT = "amorctl.motion_dataset"
-VERSION = 2
-#: Oldest version still read: 1, the same layout without content hashes (unverified).
+VERSION = 3
+#: Oldest version still read: 1, the same layout without content hashes (unverified); 2, with the
+#: arrays' hashes but none over the metadata.
 OLDEST_VERSION = 1
 HASHES_KEY = "sha256"
+#: Key in the hashes of :func:`metadata_sha256` (required from :data:`METADATA_HASH_VERSION` on).
+METADATA_HASH = "metadata"
+METADATA_HASH_VERSION = 3
+#: Keys of a clip message that :func:`metadata_sha256` leaves out (the arrays have hashes of their own).
+UNHASHED_CLIP_KEYS = ("arrays",)
 #: Plausible limits for metadata numbers (a corrupt value is refused, not allocated).
 MAX_FPS = 10_000.0
 MAX_CLIP_FRAMES = 10_000_000
@@ -96,9 +105,24 @@ def array_sha256(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a, dtype="<f4").tobytes()).hexdigest()
 
 
-def expected_shapes(library: MotionLibrary) -> dict[str, tuple[int, ...]]:
-    """Each array's shape after the frame axis, from the metadata (J joints, E effectors, D, L)."""
-    j, e = len(library.joint_names), len(library.end_effectors)
+def metadata_sha256(meta: Mapping[str, str], clips: Sequence[Mapping[str, Any]]) -> str:
+    """SHA-256 of what a dataset says about its arrays: every key of the dataset record but the
+    hashes themselves (character, fps, joint names, sizes, VAE settings, ...) and every clip
+    message but its arrays (name, frame count, source, licence, statistics), in order.
+
+    Canonical JSON (sorted keys) of the values as stored, so the writer and the reader agree.
+    """
+    body = {
+        "dataset": {k: v for k, v in meta.items() if k != HASHES_KEY},
+        "clips": [{k: v for k, v in c.items() if k not in UNHASHED_CLIP_KEYS} for c in clips],
+    }
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def expected_shapes(j: int, e: int, frame_dim: int, latent_dim: int) -> dict[str, tuple[int, ...]]:
+    """Each array's shape after the frame axis, from the metadata: J joints, E end effectors,
+    the frame width D and the latent size L."""
     return {
         "root_pos": (3,),
         "root_quat": (4,),
@@ -109,8 +133,8 @@ def expected_shapes(library: MotionLibrary) -> dict[str, tuple[int, ...]]:
         "ee_pos": (e, 3),
         "ee_quat": (e, 4),
         "ee_lin_vel": (e, 3),
-        "frames": (library.frame_dim,),
-        "z": (library.latent_dim,),
+        "frames": (frame_dim,),
+        "z": (latent_dim,),
     }
 
 
@@ -120,7 +144,8 @@ def check_library(library: MotionLibrary, where: str) -> None:
     Raises:
         AmorError: starting with ``where``: no clips, a clip name used twice, a clip shorter than
             two frames, clips that do not tile the frames, an array whose shape disagrees with the
-            metadata, or an array holding NaN or inf (the first bad array and frame are named).
+            metadata, or an array holding NaN, inf or a value beyond the importers' plausibility
+            bound (:data:`~amorctl.motion.source.MAX_ABS_VALUE`; the first bad array and frame are named).
     """
     if not library.clips:
         raise AmorError(f"{where}: the dataset holds no clips")
@@ -143,7 +168,9 @@ def check_library(library: MotionLibrary, where: str) -> None:
                 f"{where}: clip {clip.name!r}: retarget_error = {clip.retarget_error!r} is not valid"
             )
         start += clip.num_frames
-    shapes = expected_shapes(library)
+    shapes = expected_shapes(
+        len(library.joint_names), len(library.end_effectors), library.frame_dim, library.latent_dim
+    )
     for name in ARRAYS:
         a = np.asarray(getattr(library, name))
         if a.shape != (start, *shapes[name]):
@@ -151,10 +178,12 @@ def check_library(library: MotionLibrary, where: str) -> None:
                 f"{where}: array {name!r} has shape {list(a.shape)}, the metadata says "
                 f"{[start, *shapes[name]]}"
             )
-        bad = ~np.isfinite(a)
+        bad = implausible(a)
         if bad.any():
-            frame = int(np.argwhere(bad)[0][0])
+            index = tuple(np.argwhere(bad)[0])
+            frame = int(index[0])
             clip = next(c for c in library.clips if c.start <= frame < c.start + c.num_frames)
+            what = "NaN or inf" if not np.isfinite(a[index]) else f"{a[index]:.4g} (|x| > {MAX_ABS_VALUE:g})"
             raise AmorError(
-                f"{where}: array {name!r} holds NaN or inf (clip {clip.name!r}, frame {frame - clip.start})"
+                f"{where}: array {name!r} holds {what} (clip {clip.name!r}, frame {frame - clip.start})"
             )

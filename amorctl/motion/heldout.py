@@ -5,7 +5,8 @@ elsewhere carry another VAE's latents (or none), so :func:`dataset_for_run` re-e
 frames with the run dataset's encoder and writes the result once to the user cache (a run
 dataset without an encoder, preprocessed with ``--no-vae``, needs latents of the same size and
 uses the file as it is); the run's
-env is then rebuilt on that file (``RunDir.env(dataset=...)``). The character, joint order,
+env is then rebuilt on that file (:meth:`amorctl.train.rundir.RunDir.config_for_data`, which first
+tells a moved copy of the run's own dataset, by its SHA-256, from held-out clips). The character, joint order,
 end effectors, frame rate and frame layout must match the run's: a mismatch is refused naming
 both files and what differs.
 """
@@ -18,9 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from amorctl.core.config import TrainConfig
 from amorctl.core.errors import AmorError
-from amorctl.motion.cache import cache_dir, default_dataset
+from amorctl.motion.cache import cache_dir, cached
 from amorctl.motion.clips import MotionLibrary
 from amorctl.motion.dataset import load_clip_stats, load_dataset, load_encoder_bytes, write_dataset
 
@@ -40,11 +40,6 @@ def _mismatch(run: MotionLibrary, data: MotionLibrary) -> list[str]:
     ):
         problems.append(f"frame layout differs ({data.frames.shape[1]} vs {run.frames.shape[1]} features)")
     return problems
-
-
-def run_dataset_path(character: str, dataset: str) -> Path:
-    """The dataset a run trained on: its config's ``env.dataset``, else the built-in one."""
-    return Path(dataset) if dataset else default_dataset(character)
 
 
 def dataset_for_run(run_dataset: Path, data: Path) -> Path:
@@ -68,8 +63,6 @@ def dataset_for_run(run_dataset: Path, data: Path) -> Path:
     encoder = load_encoder_bytes(run_dataset)
     digest = hashlib.sha256(data.read_bytes() + (encoder or b"no-vae")).hexdigest()[:24]
     out = cache_dir() / "heldout" / f"{data.stem}-{digest}.mcap"
-    if out.is_file():
-        return out
     starts = np.array([c.start for c in lib.clips], dtype=np.int64)
     lengths = np.array([c.num_frames for c in lib.clips], dtype=np.int64)
     if encoder is None:  # nothing to re-encode with: the file's own latents must have the run's size
@@ -81,33 +74,20 @@ def dataset_for_run(run_dataset: Path, data: Path) -> Path:
         return data
     from amorctl.motion.vae import encoder_from_bytes
 
-    z = encoder_from_bytes(encoder).encode(lib.frames, starts, lengths).astype(np.float32)
-    if z.shape[1] != run_lib.z.shape[1]:
-        raise AmorError(
-            f"{run_dataset}: its encoder gives {z.shape[1]} latents but it stores {run_lib.z.shape[1]}"
+    def build(path: Path) -> None:
+        z = encoder_from_bytes(encoder).encode(lib.frames, starts, lengths).astype(np.float32)
+        if z.shape[1] != run_lib.z.shape[1]:
+            raise AmorError(
+                f"{run_dataset}: its encoder gives {z.shape[1]} latents but it stores {run_lib.z.shape[1]}"
+            )
+        meta = dict(lib.metadata)
+        meta["vae"] = run_lib.metadata.get("vae")
+        meta["latents_from"] = str(run_dataset)
+        write_dataset(
+            path,
+            dataclasses.replace(lib, z=z, metadata=meta),
+            clip_stats=load_clip_stats(data),
+            encoder=encoder,
         )
-    meta = dict(lib.metadata)
-    meta["vae"] = run_lib.metadata.get("vae")
-    meta["latents_from"] = str(run_dataset)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_dataset(
-        out,
-        dataclasses.replace(lib, z=z, metadata=meta),
-        clip_stats=load_clip_stats(data),
-        encoder=encoder,
-    )
-    return out
 
-
-def config_with_dataset(config: TrainConfig, data: Path | None) -> TrainConfig:
-    """The run's config tracking ``data`` (re-encoded by :func:`dataset_for_run`); unchanged if None.
-
-    Raises:
-        AmorError: the run is not a motion-tracking run, or ``data`` does not fit it.
-    """
-    if data is None:
-        return config
-    if config.env.kind != "tracking":
-        raise AmorError(f"--data {data}: needs a motion-tracking run; this run's env is {config.env.kind!r}")
-    path = dataset_for_run(run_dataset_path(config.env.character, config.env.dataset), Path(data))
-    return dataclasses.replace(config, env=dataclasses.replace(config.env, dataset=str(path)))
+    return cached(out, build, "the held-out dataset with the run's latents")

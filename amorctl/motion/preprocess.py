@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.core.files import check_writable
 from amorctl.motion.builtin import builtin_clips, source_label
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 from amorctl.motion.dataset import write_dataset
@@ -132,7 +133,9 @@ def preprocess(
     progress: Progress | None = None,
     licence: str | None = None,
 ) -> PreprocessReport:
-    """Build a motion dataset at ``out``; AmorError (and no file) on any bad input."""
+    """Build a motion dataset at ``out``; AmorError (and no file) on any bad input, and before any
+    work when ``out``'s folder is not writable."""
+    check_writable(Path(out).parent, "output folder", "make it writable or choose another --out")
     progress = progress or Progress()
     t0 = time.perf_counter()
     spec = get_registry().character(character)
@@ -273,5 +276,6 @@ def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
     keep = (
         "method", "floor_lift_max", "foot_sliding", "foot_sliding_source", "scale",
         "npz_layout", "penetration_before_lift_m", "lower_foot_hover_max", "fk_check_error_m",
+        "body_names", "notes",
     )  # fmt: skip
     return {k: stats[k] for k in keep if k in stats}

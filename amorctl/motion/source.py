@@ -210,21 +210,28 @@ MAX_ABS_VALUE = 1.0e6
 MAX_CLIP_SECONDS = 3600.0
 
 
+def implausible(values: np.ndarray) -> np.ndarray:
+    """True where a value is NaN, inf or beyond :data:`MAX_ABS_VALUE`: the one plausibility bound
+    every importer applies to every number it reads (positions, angles, channels, velocities)."""
+    with np.errstate(invalid="ignore"):
+        return ~(np.abs(np.asarray(values, dtype=np.float64)) <= MAX_ABS_VALUE)
+
+
 def check_finite(path: str, what: str, values: np.ndarray, axis_frames: int = 0) -> None:
     """Raise AmorError naming the file and the first frame holding NaN, inf or a value beyond
-    :data:`MAX_ABS_VALUE`."""
+    :data:`MAX_ABS_VALUE` (:func:`implausible`)."""
     values = np.asarray(values, dtype=np.float64)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        frame = int(np.argwhere(bad)[0][axis_frames])
+    bad = implausible(values)
+    if not bad.any():
+        return
+    index = tuple(int(i) for i in np.argwhere(bad)[0])
+    frame = index[axis_frames]
+    if not np.isfinite(values[index]):
         raise AmorError(f"{path}: non-finite value (NaN or inf) in {what} at frame {frame}")
-    huge = np.abs(values) > MAX_ABS_VALUE
-    if huge.any():
-        index = tuple(np.argwhere(huge)[0])
-        raise AmorError(
-            f"{path}: value {values[index]:.4g} in {what} at frame {index[axis_frames]} is implausibly "
-            f"large (|x| > {MAX_ABS_VALUE:g})"
-        )
+    raise AmorError(
+        f"{path}: value {values[index]:.4g} in {what} at frame {frame} is implausibly large "
+        f"(|x| > {MAX_ABS_VALUE:g})"
+    )
 
 
 def check_times(path: str, times: np.ndarray) -> None:

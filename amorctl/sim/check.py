@@ -5,8 +5,9 @@ is checked: the model compiles as amorctl prepares it, every joint has its actua
 lists joints in qpos order, the actuator type fits the actuator kind, a floor, amorctl's sensors
 resolved at their own addresses (and reading what MuJoCo's kinematics says), the spec's gains and
 limits against the file's, the joint ranges, the standing height by forward kinematics, a 5 s PD
-hold of the standing pose, and suggestions for the ``smooth`` torque scale from the holding
-torques and the mass (relative to a reference character of the same scale profile).
+hold of the standing pose, suggestions for the ``smooth`` torque scale from the holding
+torques and the mass (relative to a reference character of the same scale profile), and what the
+model will cost to train (:mod:`amorctl.sim.cost`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
+from amorctl.sim.character_info import fmt_list, standing_targets
 from amorctl.sim.geom_bottom import lowest_point
 from amorctl.sim.prepare import FLOOR_NAME, has_floor, joint_actuators, sensor_addresses
 
@@ -52,11 +54,6 @@ class HoldResult:
     def mean_sq_torque(self) -> float:
         """Mean over control steps of Σ_j τ_j², (N·m)²."""
         return float(self.sq_torque.mean())
-
-
-def standing_targets(character: CharacterSpec) -> np.ndarray:
-    """[J] the standing pose (joints not listed are 0)."""
-    return np.array([character.standing_pose.get(j, 0.0) for j in character.joint_names()])
 
 
 def hold_standing_pose(character: CharacterSpec, seconds: float = HOLD_SECONDS) -> HoldResult:
@@ -97,10 +94,6 @@ def _model_table(character: CharacterSpec) -> tuple[mujoco.MjModel, dict[str, An
     return model, {"actuators": {j: a.name for j, a in acts.items()}, "floor": floor}
 
 
-def _fmt_list(names: list[str], limit: int = 4) -> str:
-    return ", ".join(names[:limit]) + (f" (+{len(names) - limit} more)" if len(names) > limit else "")
-
-
 def check_character(
     character: CharacterSpec,
     *,
@@ -108,14 +101,20 @@ def check_character(
     reference: CharacterSpec | None = None,
     smooth_torque_scale: float | None = None,
     hold_runner: Callable[[CharacterSpec], HoldResult] = hold_standing_pose,
+    cost: bool = True,
+    rate_runner: Callable[..., float] | None = None,
 ) -> list[Check]:
     """Run every check; never raises for a bad character (a failed check says why).
 
     Args:
         hold: run the 5 s PD hold test (and the torque-based suggestion).
         reference: a character of the same scale profile whose ``smooth`` scales are known to work
-            (biped20 for "robot", humanoid36 for "humanoid"); None skips the suggestion.
+            (biped20 for "robot", humanoid36 for "humanoid"); None skips the suggestion and the
+            cost check compares with :data:`SLOW_STEPS_PER_S` instead.
         smooth_torque_scale: the ``smooth_torque`` scale the objective set uses for ``character``.
+        cost: run the cost check (timed simulation, :func:`amorctl.sim.cost.cost_check`).
+        rate_runner: measures simulated env steps/s (default :func:`amorctl.sim.cost.sim_step_rate`;
+            tests pass a fake).
     """
     from amorctl.sim.batch_sim import build_model
 
@@ -141,6 +140,17 @@ def check_character(
     checks.append(_gains_check(character, raw, table["actuators"]))
     checks.append(_ranges_check(character, raw))
     checks.append(_standing_check(character, model))
+    if cost:
+        from amorctl.sim.cost import cost_check, sim_step_rate
+
+        def holds_at(spec: CharacterSpec) -> bool:
+            result = hold_runner(spec)
+            return not result.diverged and float(result.heights.min()) > spec.min_standing_height
+
+        status, detail, values = cost_check(
+            character, model, reference, rate_runner or sim_step_rate, holds_at if hold else None
+        )
+        checks.append(Check("cost", status, detail, values))
     if hold:
         result = hold_runner(character)
         checks.append(_hold_check(character, result))
@@ -169,7 +179,7 @@ def _actuators_check(character: CharacterSpec, raw: mujoco.MjModel, acts: Mappin
     if act_order != names:  # harmless: amorctl maps actuators by joint, never by index
         detail += "; the model's actuator order differs from the joint order (mapped by name)"
     if passive:
-        status, detail = "warn", detail + f"; unactuated hinges keep qpos0: {_fmt_list(passive)}"
+        status, detail = "warn", detail + f"; unactuated hinges keep qpos0: {fmt_list(passive)}"
     return Check(
         "actuators", status, detail, {"qpos_order": qpos_order == names, "actuator_order": act_order == names}
     )
@@ -244,7 +254,7 @@ def _gains_check(character: CharacterSpec, raw: mujoco.MjModel, acts: Mapping[st
     return Check(
         "gains",
         "warn",
-        f"{len(diffs)} joint(s) differ from the model file, spec/model: {_fmt_list(diffs, 2)}; "
+        f"{len(diffs)} joint(s) differ from the model file, spec/model: {fmt_list(diffs, 2)}; "
         f"spec values {what}",
         {"differing": diffs},
     )
@@ -263,7 +273,7 @@ def _ranges_check(character: CharacterSpec, raw: mujoco.MjModel) -> Check:
             "ranges",
             "warn",
             f"{len(diffs)} spec range(s) differ from the model's joint limits (the model's limits act): "
-            + _fmt_list(diffs, 2),
+            + fmt_list(diffs, 2),
         )
     return Check("ranges", "pass", "spec joint ranges agree with the model's limits")
 

@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 from numpy.random import MT19937, PCG64, PCG64DXSM, SFC64, Philox
 from safetensors import SafetensorError
-from safetensors.numpy import load_file, save_file
+from safetensors.numpy import load_file, save
 
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
-from amorctl.core.files import atomic_path, atomic_write_text
+from amorctl.core.files import atomic_write_bytes, atomic_write_text, file_sha256
 
 FORMAT = "amorctl-checkpoint/1"
 _NAME = re.compile(r"^iter_(\d+)\.json$")
@@ -67,24 +67,21 @@ def record_sha256(record: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def save_checkpoint(
     directory: Path, iteration: int, meta: dict[str, Any], trainer: Snapshot, env: Snapshot | None
 ) -> Path:
-    """Write a checkpoint atomically; returns the JSON path."""
+    """Write a checkpoint atomically; returns the JSON path.
+
+    Raises:
+        StorageError: the storage refused the write (disk full, ...): neither file is left behind
+            and the older checkpoints are untouched.
+    """
     tensors_path, json_path = checkpoint_paths(directory, iteration)
     arrays = {f"trainer/{k}": np.ascontiguousarray(v) for k, v in trainer.arrays.items()}
     if env is not None:
         arrays.update({f"env/{k}": np.ascontiguousarray(v) for k, v in env.arrays.items()})
-    with atomic_path(tensors_path) as tmp:
-        save_file(arrays, str(tmp), metadata={"format": FORMAT})
+    data = save(arrays, metadata={"format": FORMAT})
+    atomic_write_bytes(tensors_path, data)  # a refused write (disk full) leaves no partial file
     record = {
         "format": FORMAT,
         "iteration": iteration,
@@ -93,12 +90,16 @@ def save_checkpoint(
         "env": None if env is None else env.meta,
         "tensors": {
             "file": tensors_path.name,
-            "bytes": tensors_path.stat().st_size,
-            "sha256": _sha256(tensors_path),
+            "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(),
         },
     }
     record[META_HASH] = record_sha256(record)
-    atomic_write_text(json_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    try:
+        atomic_write_text(json_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+    except BaseException:  # no JSON, no checkpoint: leave no orphan tensors file either
+        tensors_path.unlink(missing_ok=True)
+        raise
     return json_path
 
 
@@ -231,7 +232,7 @@ def load_checkpoint(json_path: Path) -> Checkpoint:
         raise AmorError(
             f"{tensors_path}: checkpoint is truncated or altered ({size} bytes, {info['bytes']} expected)"
         )
-    if _sha256(tensors_path) != info["sha256"]:
+    if file_sha256(tensors_path) != info["sha256"]:
         raise AmorError(f"{tensors_path}: checkpoint content does not match its recorded SHA-256")
     try:
         arrays = load_file(str(tensors_path))
@@ -276,10 +277,12 @@ def _like(path: Path, where: str, want: Any, got: Any) -> None:
             raise AmorError(f"{path}: {where} = {got!r} must be a finite number")
 
 
-def check_like(path: Path, where: str, expected: Snapshot, got: Snapshot) -> None:
+def check_like(path: Path, where: str, expected: Snapshot, got: Snapshot, finite: bool = False) -> None:
     """Check a loaded state against the state a fresh trainer or env of this run has: the same
     JSON structure and types, and every expected array present with its shape and dtype (extra
-    arrays, such as optimizer moments a fresh trainer lacks, are allowed).
+    arrays, such as optimizer moments a fresh trainer lacks, are allowed). ``finite``: an array
+    that is finite in the fresh state (networks, normalizer, optimizer) must be finite here too
+    (arrays a fresh state fills with NaN, such as empty episode windows, are exempt).
 
     Raises:
         AmorError: naming ``path`` and the first key that differs.
@@ -294,6 +297,12 @@ def check_like(path: Path, where: str, expected: Snapshot, got: Snapshot) -> Non
             raise AmorError(
                 f"{path}: {where} array {key!r} is {have.dtype}{list(have.shape)}, "
                 f"this run needs {want.dtype}{list(want.shape)}"
+            )
+        numeric = want.dtype.kind in "fc"
+        if finite and numeric and np.isfinite(want).all() and not np.isfinite(have).all():
+            raise AmorError(
+                f"{path}: {where} array {key!r} holds NaN or inf: the checkpoint is damaged; resume "
+                "from another checkpoint or start anew"
             )
 
 

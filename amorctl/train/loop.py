@@ -31,8 +31,9 @@ import numpy as np
 
 from amorctl.core.config import TrainConfig, to_toml
 from amorctl.core.contracts import Snapshot, SnapshotEnv, Trainer
+from amorctl.core.dir_lock import dir_lock
 from amorctl.core.errors import AmorError
-from amorctl.core.files import atomic_write_text
+from amorctl.core.files import StorageError, atomic_write_text, check_writable
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
 from amorctl.train import distributed
@@ -46,7 +47,14 @@ from amorctl.train.checkpoint import (
 )
 from amorctl.train.episode_stats import EpisodeRecorder
 from amorctl.train.metrics import METRICS_FILE, TB_DIR, MetricsLog
-from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir, check_compatible, run_meta
+from amorctl.train.rundir import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    RunDir,
+    check_compatible,
+    record_dataset,
+    run_meta,
+)
 from amorctl.train.signals import stop_on_signals
 
 
@@ -144,7 +152,7 @@ def _restore(
         if not same_world:  # per-env arrays (leading dimension N) restart with the envs below
             kept = {k: v for k, v in expected.arrays.items() if v.shape[:1] != (env.num_envs,)}
             expected = Snapshot(kept, expected.meta)
-        check_like(ckpt.path, "trainer", expected, trainer_state)
+        check_like(ckpt.path, "trainer", expected, trainer_state, finite=True)
         trainer.load_state_dict(trainer_state)
         if not same_world and on_note is not None:
             on_note(
@@ -209,6 +217,8 @@ def train_run(
             training diverged. A new run that fails before its first checkpoint leaves nothing.
     """
     run = RunDir(out)
+    if not resume:  # stored absolute with its SHA-256: the run works from anywhere (rundir.py)
+        config = record_dataset(config)
     if run.read_only:
         raise AmorError(
             f"{run.label}: pretrained runs are read-only and carry no optimizer state, so they "
@@ -218,33 +228,47 @@ def train_run(
     if not world.is_main:  # other ranks stay quiet
         on_start = on_iteration = on_note = None
     ckpt: Checkpoint | None = None
-    with world.agreeing():  # every rank sees the files rank 0 checks (a shared filesystem on resume)
-        if resume:
-            run.config  # noqa: B018 (a run to resume must have a valid config)
-            ckpt = run.checkpoint()
-        elif world.is_main and run.exists():
-            raise AmorError(
-                f"{out} already holds a run; pass --resume to continue it or choose another --out"
-            )
-        if world.is_main and out.exists() and not out.is_dir():
-            raise AmorError(f"{out}: --out must be a directory, not a file")
-    if ckpt is not None and world.distributed:
-        seen = world.all_gather(ckpt.iteration)
-        if len(set(seen)) > 1:
-            raise distributed.DistributedError(
-                f"--resume: the ranks see different newest checkpoints in {out} (iterations {seen}); "
-                "every rank must see the same run directory (a shared filesystem)"
-            )
     created = not out.exists()
-    saved: list[Path] = []  # checkpoints this call wrote
-    try:
-        with captured_sim_warnings() as warnings:
-            hooks = (on_start, on_iteration, stop_after, stop_when)
-            return _train(config, run, ckpt, warnings, saved, *hooks, world, on_note)
-    except BaseException:
-        if world.is_main and ckpt is None and not saved:
-            _remove_failed_run(out, created)
-        raise
+    with contextlib.ExitStack() as lock:
+        with world.agreeing():  # every rank sees the files rank 0 checks (a shared filesystem on resume)
+            if resume and config.env.dataset == run.config.env.dataset:  # (else moved: --data)
+                run.config_for_data(None)  # a valid config, and its dataset where it says
+            elif resume:
+                run.config  # noqa: B018 (a run to resume must have a valid config)
+            elif world.is_main and run.exists():
+                raise AmorError(
+                    f"{out} already holds a run; pass --resume to continue it or choose another --out"
+                )
+            if world.is_main and out.exists() and not out.is_dir():
+                raise AmorError(f"{out}: --out must be a directory, not a file")
+            if world.is_main:  # before any work: a read-only run directory, another writer
+                check_writable(out, "run directory", _READ_ONLY_TODO[resume])
+                lock.enter_context(dir_lock(out, "run directory"))
+            if resume:  # under the lock: the newest checkpoint cannot change any more
+                ckpt = run.checkpoint()
+        if ckpt is not None and world.distributed:
+            seen = world.all_gather(ckpt.iteration)
+            if len(set(seen)) > 1:
+                raise distributed.DistributedError(
+                    f"--resume: the ranks see different newest checkpoints in {out} (iterations {seen}); "
+                    "every rank must see the same run directory (a shared filesystem)"
+                )
+        saved: list[Path] = []  # checkpoints this call wrote
+        try:
+            with captured_sim_warnings() as warnings:
+                hooks = (on_start, on_iteration, stop_after, stop_when)
+                return _train(config, run, ckpt, warnings, saved, *hooks, world, on_note)
+        except BaseException:
+            if world.is_main and ckpt is None and not saved:
+                _remove_failed_run(out, created)
+            raise
+
+
+#: what to do about a read-only run directory, new run (False) or resumed (True)
+_READ_ONLY_TODO = {
+    False: "make it writable or choose another --out",
+    True: "make it writable (or copy the run to a writable place and resume there)",
+}
 
 
 def _train(
@@ -267,7 +291,18 @@ def _train(
     batch = config.env.num_envs * config.ppo.num_steps
 
     def checkpoint(iteration: int) -> Path:
-        return _checkpoint(run, config, world, iteration, meta, env, trainer, saved)
+        try:
+            return _checkpoint(run, config, world, iteration, meta, env, trainer, saved)
+        except StorageError as err:  # disk full, ...: say what is safe and how to go on
+            keep = (
+                f"the newest complete checkpoint {last_path} is intact: {err.fix}, then continue with "
+                f"`amorctl train --resume --out {out}`"
+                if last_path is not None
+                else f"no checkpoint was saved, so the run directory was removed: {err.fix} and run again"
+            )
+            raise StorageError(
+                err.path, err.reason, f"{err.path}: cannot write ({err.reason}); {keep}"
+            ) from None
 
     metrics_log = (
         _metrics_log(out, config, start if ckpt is not None else None)
@@ -297,7 +332,8 @@ def _train(
                 diverged = _diverged_total(env) - diverged_before
                 if world.distributed:  # every rank decides on all ranks' counts
                     diverged = int(world.sum(diverged)[0])
-                _check_divergence(last, iteration, warnings, diverged, batch, last_path)
+                resumed = ckpt is not None and last_path == ckpt.path  # nothing saved since
+                _check_divergence(last, iteration, warnings, diverged, batch, last_path, resumed)
                 done_here = iteration - start
                 interrupted = world.any(  # all ranks stop at the same iteration
                     stop.requested
@@ -382,17 +418,23 @@ def _check_divergence(
     diverged: int,
     batch: int,
     last_path: Path | None,
+    resumed: bool = False,
 ) -> None:
     """End the run with one line when the whole batch diverged: a non-finite loss, or every env
-    step of the iteration blew up in the simulator."""
+    step of the iteration blew up in the simulator. ``resumed``: ``last_path`` is the checkpoint
+    this call resumed from (no checkpoint since), so it is not called good."""
     losses_bad = not all(np.isfinite(v) for k, v in metrics.items() if k.startswith("loss/"))
     sim_bad = diverged >= batch
     if not (losses_bad or sim_bad):
         return
     what = "non-finite loss" if losses_bad else f"the simulation was unstable on all {batch} env steps"
-    where = (
-        f"the last good checkpoint is {last_path}"
-        if last_path is not None
-        else "no checkpoint was saved, so the run directory was removed"
-    )
+    if last_path is None:
+        where = "no checkpoint was saved, so the run directory was removed"
+    elif resumed:
+        where = (
+            f"it diverged before saving a checkpoint after resuming from {last_path}, which may itself "
+            "hold the bad state: resume from an earlier checkpoint (delete the later ones) or start anew"
+        )
+    else:
+        where = f"the last good checkpoint is {last_path}"
     raise AmorError(f"training diverged at iteration {iteration} ({what}{warnings.summary()}); {where}")

@@ -30,7 +30,9 @@ class MetricsLog:
             rows = list(csv.DictReader(self.path.open(newline="", encoding="utf-8")))
             if rows:
                 self.columns = list(rows[0])
-                kept = [r for r in rows if float(r["iteration"]) <= resume_from]
+                # a row cut short (a write the disk refused mid-line) has missing (None) fields
+                whole = [r for r in rows if None not in r and None not in r.values()]
+                kept = [r for r in whole if float(r["iteration"]) <= resume_from]
                 buf = io.StringIO()
                 writer = csv.DictWriter(buf, self.columns)
                 writer.writeheader()

@@ -30,7 +30,6 @@ from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
 from amorctl.core.weights import sample_dirichlet
-from amorctl.motion.heldout import run_dataset_path
 from amorctl.train import pretrained
 from amorctl.train.checkpoint import save_checkpoint
 from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir
@@ -166,12 +165,8 @@ def export_pretrained(
     run = RunDir.open(run_path)
     ckpt = run.checkpoint(iteration)
     policy = run.policy_of(ckpt)
+    dataset = run.dataset_path()  # checked: one error naming the run's config key if it moved
     config = run.config
-    dataset = (
-        run_dataset_path(config.env.character, config.env.dataset) if config.env.kind == "tracking" else None
-    )
-    if dataset is not None and not dataset.is_file():
-        raise AmorError(f"{dataset}: the run's motion dataset is not there (needed in the entry)")
     stripped = strip_trainer_state(ckpt.trainer)
     meta = {k: v for k, v in ckpt.meta.items() if k != "iteration"}
 

@@ -7,7 +7,10 @@
 - ``metrics.csv``: one row per iteration; ``tb/``: the same as TensorBoard scalars.
 
 Every command that opens a run (train --resume, pareto, evaluate, tune, hlp, deploy) does it
-through :class:`RunDir`, so a missing, half-written or mismatched run is reported in one place.
+through :class:`RunDir`, so a missing, half-written or mismatched run is reported in one place;
+the run's motion dataset is resolved in one place too (:meth:`RunDir.dataset_path`): ``train``
+stores it absolute with its SHA-256 (:func:`record_dataset`), so a run works from any directory,
+and a moved dataset is found again with ``--data NEWPATH`` (:meth:`RunDir.config_for_data`).
 ``pretrained:<name>`` in place of a path opens a read-only run shipped with the package
 (:mod:`amorctl.train.pretrained`); commands write its outputs to :meth:`RunDir.output_dir`.
 """
@@ -23,6 +26,7 @@ from amorctl import __version__
 from amorctl.core.config import TrainConfig, load_config
 from amorctl.core.contracts import Backend, Policy
 from amorctl.core.errors import AmorError
+from amorctl.core.files import file_sha256
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
 from amorctl.registry import get_registry
@@ -129,6 +133,86 @@ class RunDir:
             cfg = dataclasses.replace(cfg, env=env)
         return cfg
 
+    # --- the motion dataset -------------------------------------------------------------------
+    def dataset_path(self) -> Path | None:
+        """The motion dataset the run trains on, checked to be there: its config's ``env.dataset``
+        (a pretrained entry's own copy; the character's built-in clips, preprocessed into the cache
+        on first use, when empty); None for runs without motions. Every command that reads a run's
+        dataset (train --resume, evaluate, pareto, tune, hlp, deploy export) gets it here.
+
+        Raises:
+            AmorError: the file is not there: names the run's config key and how to point at it.
+        """
+        env = self.config.env
+        if env.kind != "tracking":
+            return None
+        if not env.dataset:
+            from amorctl.motion.cache import default_dataset
+
+            return default_dataset(env.character)
+        path = Path(env.dataset)
+        if path.is_file():
+            return path
+        relative = "" if path.is_absolute() else " (a relative path, read from the directory amorctl runs in)"
+        same = f" with SHA-256 {env.dataset_sha256[:12]}…" if env.dataset_sha256 else ""
+        raise AmorError(
+            f"{self.config_path}: env.dataset = {str(path)!r}{relative}: the run's motion dataset is "
+            f"not there (moved or deleted): pass --data NEWPATH (the same file{same}), or set "
+            f"env.dataset in {self.config_path} to where it is now"
+        )
+
+    def config_for_data(self, data: str | Path | None) -> TrainConfig:
+        """The config to roll the run out on with ``--data DATA`` (evaluate, pareto, tune, deploy
+        export): DATA with the SHA-256 the run recorded is the run's own dataset, moved (the run's
+        config points at it from now on: ``self.config`` too); any other file is held-out clips,
+        re-encoded with the run dataset's VAE (:func:`amorctl.motion.heldout.dataset_for_run`).
+        Without DATA, the run's own (checked: :meth:`dataset_path`).
+
+        Raises:
+            AmorError: the run is not a motion-tracking run, a file is missing, or DATA does not fit.
+        """
+        from amorctl.motion.heldout import dataset_for_run
+
+        config = self.config
+        if data is None:
+            if config.env.kind == "tracking" and config.env.dataset:
+                self.dataset_path()
+            return config
+        if self.relocate_dataset(data):
+            return self.config
+        held_out = dataset_for_run(self.dataset_path(), Path(data))
+        return dataclasses.replace(config, env=dataclasses.replace(config.env, dataset=str(held_out)))
+
+    def relocate_dataset(self, data: str | Path, *, required: str = "") -> bool:
+        """Whether ``data`` is the run's own dataset, moved: the SHA-256 the run recorded
+        (``env.dataset_sha256``) matches; then ``self.config`` points at it (nothing is written).
+        ``required``: why only the run's own dataset will do (a refusal otherwise, saying so).
+
+        Raises:
+            AmorError: the run is not a motion-tracking run, ``data`` is missing, or (``required``)
+                ``data`` is not the run's dataset.
+        """
+        data, config = Path(data), self.config
+        if config.env.kind != "tracking":
+            raise AmorError(
+                f"--data {data}: needs a motion-tracking run; this run's env is {config.env.kind!r}"
+            )
+        if not data.is_file():
+            raise AmorError(f"{data}: motion dataset not found (--data)")
+        recorded = config.env.dataset_sha256
+        if not recorded or file_sha256(data) != recorded:
+            if required:
+                why = (
+                    f"its SHA-256 is not the {recorded[:12]}… recorded in {self.config_path}"
+                    if recorded
+                    else f"the run recorded no SHA-256 to compare with: set env.dataset in {self.config_path}"
+                )
+                raise AmorError(f"--data {data}: not the run's dataset ({why}): {required}")
+            return False
+        env = dataclasses.replace(config.env, dataset=str(data.resolve()))
+        self.__dict__["config"] = dataclasses.replace(config, env=env)  # the cached property
+        return True
+
     # --- checkpoints --------------------------------------------------------------------------
     def checkpoints(self) -> list[tuple[int, Path]]:
         """(iteration, JSON path) of every checkpoint, oldest first."""
@@ -171,6 +255,8 @@ class RunDir:
     def env(self, *, num_envs: int | None = None, seed: int | None = None, **env_overrides: Any) -> VectorEnv:
         """The run's env rebuilt from its config, optionally resized / reseeded / changed
         (``env_overrides`` are fields of the config's ``[env]`` table)."""
+        if "dataset" not in env_overrides:
+            self.config_for_data(None)  # the run's dataset is there, or one error naming the key
         return make_env(self.env_config(num_envs=num_envs, seed=seed, **env_overrides), self.backend())
 
     def env_config(
@@ -197,6 +283,19 @@ class RunDir:
         policy = self.backend().load_policy(ckpt.trainer, config)
         check_policy_sizes(ckpt, policy.obs_dim, policy.action_dim, policy.objectives)
         return policy
+
+
+def record_dataset(config: TrainConfig) -> TrainConfig:
+    """A new run's config with its dataset stored absolute (so the run works from any directory)
+    and that file's SHA-256 next to it (so ``--data`` recognizes the file if it moves); unchanged
+    without an explicit dataset. A missing file is left to the env's own error."""
+    env = config.env
+    if env.kind != "tracking" or not env.dataset or not Path(env.dataset).is_file():
+        return config
+    path = Path(env.dataset).resolve()
+    return dataclasses.replace(
+        config, env=dataclasses.replace(env, dataset=str(path), dataset_sha256=file_sha256(path))
+    )
 
 
 def run_meta(config: TrainConfig, env: VectorEnv) -> dict[str, Any]:

@@ -28,6 +28,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.core.live_auth import check_bind
 from amorctl.core.schedule import dump_schedule
 from amorctl.tune.session import PinnedMotion, StepRecord, geom_table
 
@@ -421,20 +422,38 @@ def serve_live(
     port: int = 8080,
     announce: Callable[[str], None] | None = None,
     app_class: type[LiveApp] = LiveApp,
+    token: str | None = None,
 ) -> None:
-    """Serve ``session`` on a live page (an ``app_class``, e.g. the HLP's) until interrupted (Ctrl-C)."""
+    """Serve ``session`` on a live page (an ``app_class``, e.g. the HLP's) until interrupted (Ctrl-C).
+
+    Beyond loopback only with a shared ``token`` (:func:`amorctl.core.live_auth.check_bind`): the
+    page then listens on 127.0.0.1 behind a :class:`~amorctl.tune.live_gate.LiveGate` at
+    ``host:port``, and the announced URL carries the token.
+    """
+    token = check_bind(host, token, f"--live --host {host}")
     before = set(threading.enumerate())
+    gate = None
     try:
-        app = app_class(session, host=host, port=port)
+        app = app_class(session, host="127.0.0.1" if token else host, port=0 if token else port)
     except OSError as exc:
         raise AmorError(f"cannot serve the live page on {host}:{port}: {exc}") from None
+    if token:
+        from amorctl.tune.live_gate import LiveGate
+
+        try:
+            gate = LiveGate(host, port, app.port, token)
+        except AmorError:
+            app.stop()
+            raise
     if announce is not None:
-        announce(app.url)
+        announce(gate.url if gate is not None else app.url)
     app.start()
     try:
         with contextlib.suppress(KeyboardInterrupt):
             app.wait()
     finally:
+        if gate is not None:
+            gate.close()
         _join_threads(set(threading.enumerate()) - before, timeout_s=SHUTDOWN_TIMEOUT_S)
 
 

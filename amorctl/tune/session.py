@@ -27,7 +27,6 @@ from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
 from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
 from amorctl.envs.wrappers import FixedWeights
-from amorctl.motion.heldout import config_with_dataset
 from amorctl.motion.resolve import resolve_name
 from amorctl.train.rundir import RunDir, check_compatible
 
@@ -93,9 +92,9 @@ class PinnedMotion:
     ) -> None:
         self.run_dir = Path(run_dir)
         run = RunDir.open(self.run_dir)
+        config = run.config_for_data(dataset)  # --data: the run's dataset moved, or held-out clips
         ckpt = run.checkpoint()
         self.policy = run.policy_of(ckpt)
-        config = config_with_dataset(run.config, dataset)  # --data: held-out clips
         env_cfg = dataclasses.replace(config.env, num_envs=1, fixed_weights="")
         self.config = dataclasses.replace(config, env=env_cfg, run=dataclasses.replace(config.run, seed=seed))
         base: Any = make_env(self.config)

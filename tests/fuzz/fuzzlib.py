@@ -11,12 +11,16 @@ Never exit 1 (an unexpected exception), never a traceback, never a warning line.
 
 Mutations are drawn by hypothesis: byte-level (truncate, flip a byte, delete / insert /
 duplicate a span) on any file, and structured ones on parsed JSON / TOML documents (delete a key,
-replace a value with NaN, inf, a huge number, a wrong type, or a deeply nested list).
+replace a value with NaN, inf, a huge number, a wrong type, or a deeply nested list) and on
+arrays (deleted, a bad value, another dtype or shape, swapped with another). Files that carry
+hashes (checkpoints, datasets) are also mutated and then re-hashed, as a user who edits a file and
+fixes its hashes would: then only the checks behind the hashes stand between the edit and a run.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import math
@@ -27,10 +31,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from hypothesis import HealthCheck, Phase, settings
 from hypothesis import strategies as st
 
 from amorctl.cli.main import main
+from amorctl.train.checkpoint import FORMAT as CHECKPOINT_FORMAT
+from amorctl.train.checkpoint import record_sha256
 
 #: Variants per file class: the default (CI) run and the ``-m slow`` run.
 CI_EXAMPLES = int(os.environ.get("AMORCTL_FUZZ_EXAMPLES", "30"))
@@ -152,6 +159,62 @@ def structured_mutation(draw: st.DrawFn, doc: Any, allow_null: bool = True) -> t
     value = draw(bad_values(allow_null))
     parent[last] = value
     return doc, f"{path} = {value!r}"[:200]
+
+
+@st.composite
+def array_mutation(draw: st.DrawFn, arrays: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str]:
+    """(a mutated copy of ``arrays``, a description): one array deleted, given a bad value, cast to
+    another dtype, reshaped (flattened, a row dropped or repeated) or swapped with another."""
+    arrays = {k: v.copy() for k, v in arrays.items()}
+    key = draw(st.sampled_from(sorted(arrays)))
+    a = arrays[key]
+    kind = draw(st.sampled_from(("delete", "value", "value", "dtype", "shape", "swap")))
+    if kind == "delete":
+        del arrays[key]
+        return arrays, f"delete {key}"
+    if kind == "value" and a.size:
+        flat = a.reshape(-1)
+        i = draw(st.integers(0, flat.size - 1))
+        if a.dtype.kind == "f":
+            value: Any = draw(st.sampled_from(BAD_NUMBERS))
+            with np.errstate(over="ignore"):  # 1e308 in a float32 array: inf
+                flat[i] = value
+        else:
+            value = draw(st.sampled_from((-1, 0, 1, 255, 2**31)))
+            flat[i] = np.array(value).astype(a.dtype)
+        arrays[key] = flat.reshape(a.shape)
+        return arrays, f"{key}.flat[{i}] = {value!r}"
+    if kind == "dtype":
+        dtype = draw(st.sampled_from((np.float64, np.float32, np.float16, np.int64, np.uint8, np.bool_)))
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN or 1e300 as an integer
+            arrays[key] = a.astype(dtype)
+        return arrays, f"{key} as {np.dtype(dtype)}"
+    if kind == "shape":
+        how = draw(st.sampled_from(("flatten", "drop", "repeat")))
+        rows = a.reshape(1, -1) if a.ndim == 0 else a
+        reshaped = {"flatten": a.reshape(-1), "drop": rows[:-1], "repeat": np.concatenate([rows, rows[-1:]])}
+        arrays[key] = np.ascontiguousarray(reshaped[how])
+        return arrays, f"{how} a row of {key}"
+    other = draw(st.sampled_from(sorted(arrays)))
+    arrays[key], arrays[other] = arrays[other], a
+    return arrays, f"swap {key} and {other}"
+
+
+def write_rehashed_checkpoint(json_path: Path, record: Any, arrays: dict[str, np.ndarray]) -> None:
+    """Write a checkpoint (``json_path`` and the tensors file beside it) from ``record`` and
+    ``arrays`` with every hash recomputed: the tensors' size and SHA-256 and the record's own
+    ``meta_sha256`` (where the record is still a table with a ``tensors`` table)."""
+    from safetensors.numpy import save
+
+    data = save(
+        {k: np.ascontiguousarray(v) for k, v in arrays.items()}, metadata={"format": CHECKPOINT_FORMAT}
+    )
+    json_path.with_suffix(".safetensors").write_bytes(data)
+    if isinstance(record, dict):
+        if isinstance(record.get("tensors"), dict):
+            record["tensors"].update(bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+        record["meta_sha256"] = record_sha256(record)
+    json_path.write_text(json.dumps(record, allow_nan=True))
 
 
 def dumps_json(doc: Any, depth: int) -> str:

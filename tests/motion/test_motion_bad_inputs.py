@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -38,6 +39,20 @@ def _bvh(
 
 GOOD_ROW = " ".join(["0 0.9 0"] + ["0"] * (3 + 3 * 12))
 WIDTH = 44
+
+
+def _bad_channel(value: str, token: int = 6) -> str:
+    """GOOD_ROW with one channel replaced (token 6: the chest's Zrotation, after the root's 6)."""
+    tokens = GOOD_ROW.split()
+    tokens[token] = value
+    return " ".join(tokens)
+
+
+def _npy_bytes() -> bytes:
+    """A single .npy array: what ``np.load`` returns as an array, not as an archive."""
+    buf = io.BytesIO()
+    np.save(buf, np.zeros((5, 20)))
+    return buf.getvalue()
 
 
 def _dm(rows) -> str:
@@ -119,6 +134,32 @@ CASES = {
         "joint 'root' named in .*map.toml is not in the file's hierarchy",
     ),
     "bvh_inf": ("f.bvh", _bvh([GOOD_ROW.replace("0.9", "inf", 1)]), ["--map", "MAP"], "non-finite"),
+    # one plausibility bound for every imported number: rotations like root positions
+    "bvh_huge_rotation": (
+        "h.bvh",
+        _bvh([GOOD_ROW, _bad_channel("1e26"), GOOD_ROW]),
+        ["--map", "MAP"],
+        r"line 71: value 1e\+26 in joint 'chest' Zrotation at frame 1 is implausibly large "
+        r"\(\|x\| > 1e\+06\)",
+    ),
+    "bvh_large_rotation": (
+        "l.bvh",
+        _bvh([GOOD_ROW, GOOD_ROW, _bad_channel("-1e7", token=10)]),
+        ["--map", "MAP"],
+        r"line 72: value -1e\+07 in joint 'neck' Xrotation at frame 2 is implausibly large",
+    ),
+    "bvh_huge_root": (
+        "r.bvh",
+        _bvh([GOOD_ROW, _bad_channel("2e6", token=1)]),
+        ["--map", "MAP"],
+        r"line 71: value 2e\+06 in joint 'root' Yposition at frame 1 is implausibly large",
+    ),
+    "json_huge_hinge": (
+        "h.txt",
+        _dm([_row(), _row(value=1e7), _row()]),
+        [],
+        r"value 1e\+07 in frame values at frame 1 is implausibly large",
+    ),
     "bvh_zero_frames": ("z.bvh", _bvh([], count=0), ["--map", "MAP"], "zero frames"),
     "bvh_missing_rate": (
         "m.bvh",
@@ -134,6 +175,27 @@ CASES = {
     ),
     "bvh_no_map": ("n.bvh", _bvh([GOOD_ROW]), [], "needs a joint map"),
     "npz_garbage": ("g.npz", b"PK\x03\x04 garbage that is not a zip", ["-c", "biped20"], "not a valid .npz"),
+    "npz_text": ("t.npz", "hello, a text file\n", ["-c", "biped20"], r"not an \.npz \(zip\) file"),
+    "npz_single_npy": ("s.npz", _npy_bytes(), ["-c", "biped20"], r"not an \.npz \(zip\) file"),
+    "npz_empty": ("e.npz", b"", ["-c", "biped20"], r"not an \.npz \(zip\) file"),
+    "npz_bool_fps": (
+        "b.npz",
+        _good_npz(fps=np.array(True)),
+        ["-c", "biped20"],
+        "'fps' must hold numbers, not bool",
+    ),
+    "npz_bool_joint_pos": (
+        "j.npz",
+        _good_npz(joint_pos=np.zeros((5, 20), dtype=bool)),
+        ["-c", "biped20"],
+        "'joint_pos' must hold numbers, not bool",
+    ),
+    "npz_huge_joint": (
+        "u.npz",
+        _good_npz(joint_pos=np.where(np.eye(5, 20) > 0, 3e6, 0.0)),
+        ["-c", "biped20"],
+        r"value 3e\+06 in joint_pos at frame 0 is implausibly large",
+    ),
     "npz_nan": ("n.npz", _good_npz(joint_pos=np.full((5, 20), np.nan)), ["-c", "biped20"], "NaN or inf"),
     "npz_missing_fps": ("f.npz", _good_npz(fps=None), ["-c", "biped20"], "missing frame rate fps"),
     "npz_bad_fps": ("b.npz", _good_npz(fps=np.array(0.0)), ["-c", "biped20"], "'fps' must be one positive"),
@@ -218,4 +280,19 @@ def test_missing_file_and_map_entry(tmp_path, capsys):
     )
     err = capsys.readouterr().err
     assert "partial.toml" in err and "left_elbow" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("scale", "shown"), [("true", "True"), ("1e300", "1e+300"), ("0", "0"), ('"1"', "'1'")]
+)
+def test_joint_map_scale_must_be_a_plausible_number(tmp_path, capsys, scale, shown):
+    """``scale = true`` is no unit scale (it was read as 1.0); nor is a scale beyond the bound."""
+    bvh, jmap, out = tmp_path / "a.bvh", tmp_path / "map.toml", tmp_path / "d.mcap"
+    bvh.write_text(_bvh([GOOD_ROW, GOOD_ROW]))
+    jmap.write_text(MAP + f"[options]\nscale = {scale}\n")
+    rc = main(["preprocess", str(bvh), "--map", str(jmap), "-c", "humanoid36", "--out", str(out), "--no-vae"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1, err
+    assert err == f"error: {jmap}: [options] scale = {shown} must be a positive number (at most 1e+06)\n"
     assert not out.exists()

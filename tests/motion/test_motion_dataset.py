@@ -273,20 +273,146 @@ def test_bad_dataset_metadata_is_one_error_naming_file_and_key(tmp_path, key, va
     assert str(path) in str(info.value)
 
 
-def test_version_1_datasets_without_hashes_load_unverified(tmp_path, capsys):
+def _write_with_record(path, lib: MotionLibrary, change) -> None:
+    """Write ``lib`` with its ``amorctl.dataset`` record changed by ``change(record) -> record``
+    after every hash was taken: a hand-edited (or older) dataset."""
     from amorctl.motion import dataset
 
     write = dataset.Writer.add_metadata
 
-    def as_v1(self, name, data):
-        if name == "amorctl.dataset":
-            data = {k: v for k, v in data.items() if k != "sha256"} | {"version": "1"}
-        return write(self, name, data)
+    def patched(self, name, data):
+        return write(self, name, change(dict(data)) if name == "amorctl.dataset" else data)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dataset.Writer, "add_metadata", patched)
+        write_dataset(path, lib)
+
+
+def _as_v1(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k != "sha256"} | {"version": "1"}
+
+
+def _as_v2(record: dict) -> dict:
+    """A version-2 record: the arrays' hashes, none over the metadata."""
+    hashes = {k: v for k, v in json.loads(record["sha256"]).items() if k != "metadata"}
+    return record | {"version": "2", "sha256": json.dumps(hashes)}
+
+
+def test_version_1_datasets_without_hashes_load_unverified_with_a_warning(tmp_path, capsys):
+    from amorctl.core.errors import AmorWarning
 
     path = tmp_path / "old.mcap"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(dataset.Writer, "add_metadata", as_v1)
-        write_dataset(path, _library(np.random.default_rng(0)))
-    assert load_dataset(path).metadata["integrity"]["verified"] is False
+    _write_with_record(path, _library(np.random.default_rng(0)), _as_v1)
+    with pytest.warns(AmorWarning, match="version 1 dataset without content hashes"):
+        integrity = load_dataset(path).metadata["integrity"]
+    assert integrity["verified"] is False and integrity["metadata_verified"] is False
     assert main(["data", "show", str(path)]) == 0
-    assert "integrity: not verified (version 1 dataset" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "integrity: not verified (version 1 dataset" in out
+    assert err == (
+        f"warning: {path}: version 1 dataset without content hashes: its arrays and metadata cannot be "
+        "verified; re-run `amorctl preprocess` (or delete a cached copy) to add them\n"
+    )
+
+
+def test_train_on_a_version_1_dataset_prints_one_warning_line(tmp_path, capsys):
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.registry import get_registry
+
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=1, seconds=0.4, seed=3)
+    path, out = tmp_path / "old.mcap", tmp_path / "run"
+    _write_with_record(path, lib, _as_v1)
+    code = main(["train", "-c", "biped20", "--data", str(path), "--num-envs", "2", "--iterations", "0",
+                 "--out", str(out), "--json"])  # fmt: skip
+    stdout, err = capsys.readouterr()
+    assert code == 0 and json.loads(stdout)["end_iteration"] == 0
+    assert err.count("\n") == 1 and err.startswith(
+        f"warning: {path}: version 1 dataset without content hashes"
+    )
+
+
+def test_version_2_datasets_load_with_their_metadata_unverified(tmp_path, capsys):
+    path = tmp_path / "v2.mcap"
+    _write_with_record(path, _library(np.random.default_rng(0)), _as_v2)
+    integrity = load_dataset(path).metadata["integrity"]
+    assert integrity["verified"] is True and integrity["metadata_verified"] is False
+    assert main(["data", "show", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert err == ""
+    assert (
+        "metadata: not verified (version 2 dataset: its metadata (character, fps, clip info, ...) "
+        "has no hash)" in out
+    )
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("character", "biped20"),
+        ("fps", "25.0"),
+        ("joint_names", '["j1", "j0"]'),
+        ("vae", '{"window": 9}'),
+        ("note", "an added key"),
+    ],
+)
+def test_edited_metadata_fails_the_metadata_hash_in_data_show(tmp_path, capsys, key, value):
+    """Every key of the dataset record is covered: `data show` refuses an edit (before, only
+    `train` noticed a changed character)."""
+    path = tmp_path / "d.mcap"
+    lib = _library(np.random.default_rng(0))
+    write_dataset(tmp_path / "good.mcap", lib)
+    assert main(["data", "show", str(tmp_path / "good.mcap")]) == 0
+    capsys.readouterr()
+    _write_with_record(path, lib, lambda r: r | {key: value})
+    assert main(["data", "show", str(path), "--json"]) == 2
+    assert capsys.readouterr().err == (
+        f"error: {path}: the dataset's metadata (character, fps, joint names, clip info, ...) does not "
+        "match its recorded SHA-256 (edited or corrupt; re-run preprocess)\n"
+    )
+
+
+def test_edited_clip_info_fails_the_metadata_hash(tmp_path):
+    from amorctl.core.errors import AmorError
+    from amorctl.motion import dataset
+
+    add = dataset.Writer.add_message
+
+    def renamed(self, channel, log_time, data, publish_time, sequence=0):
+        msg = json.loads(data)
+        if msg["name"] == "walker/b":
+            data = json.dumps(msg | {"name": "walker/c", "licence": "proprietary"}).encode()
+        return add(self, channel, log_time, data, publish_time, sequence)
+
+    path = tmp_path / "d.mcap"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dataset.Writer, "add_message", renamed)
+        write_dataset(path, _library(np.random.default_rng(0)))
+    with pytest.raises(AmorError, match=r"metadata .* does not match its recorded SHA-256"):
+        load_dataset(path)
+
+
+def test_a_version_3_dataset_without_its_metadata_hash_is_refused(tmp_path):
+    from amorctl.core.errors import AmorError
+
+    path = tmp_path / "d.mcap"
+    _write_with_record(path, _library(np.random.default_rng(0)), lambda r: _as_v2(r) | {"version": "3"})
+    with pytest.raises(
+        AmorError, match=r"'sha256' = .* lacks the SHA-256 of the metadata \('metadata'\) of version 3"
+    ):
+        load_dataset(path)
+
+
+def test_values_beyond_the_plausibility_bound_are_refused_like_nan(tmp_path):
+    import dataclasses
+
+    from amorctl.core.errors import AmorError
+
+    lib = _library(np.random.default_rng(0))
+    huge = dataclasses.replace(lib, root_pos=np.where(np.arange(11)[:, None] == 9, 1e30, lib.root_pos))
+    with pytest.raises(
+        AmorError, match=r"array 'root_pos' holds 1e\+30 \(\|x\| > 1e\+06\) \(clip 'walker/b', frame 2\)"
+    ):
+        write_dataset(
+            tmp_path / "d.mcap", dataclasses.replace(huge, root_pos=huge.root_pos.astype(np.float32))
+        )
+    assert not (tmp_path / "d.mcap").exists()

@@ -51,8 +51,9 @@ from amorctl.motion.source import (
     check_finite,
     check_times,
     deepmimic_skeleton,
+    implausible,
 )
-from amorctl.registry import hookimpl
+from amorctl.registry import impl as hookimpl
 
 _AXES = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
 _CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
@@ -158,10 +159,11 @@ def parse_bvh(path: Path) -> BvhFile:
             f"{count + extra} rows follow"
         )
     motion = np.asarray(rows, dtype=np.float64).reshape(count, width)
-    bad = ~np.isfinite(motion)
-    if bad.any():
-        f = int(np.argwhere(bad)[0][0])
-        raise AmorError(f"{path}: line {line - count + 1 + f}: non-finite value (NaN or inf) at frame {f}")
+    bad = implausible(motion)
+    if bad.any():  # the first bad row; in its column no earlier row is bad
+        f, c = (int(i) for i in np.argwhere(bad)[0])
+        joint, channel = [(j.name, ch) for j in joints for ch in j.channels][c]
+        check_finite(f"{path}: line {line - count + 1 + f}", f"joint {joint!r} {channel}", motion[:, c])
     return BvhFile(joints=joints, frame_time=frame_time, motion=motion)
 
 
@@ -215,7 +217,7 @@ def _floats(lines: _Lines, line: int, tok: list[str]) -> np.ndarray:
         raise lines.fail(line, "expected numbers") from None
     if not np.isfinite(vals).all():
         raise lines.fail(line, "non-finite value (NaN or inf)")
-    if (np.abs(vals) > MAX_ABS_VALUE).any():
+    if implausible(vals).any():
         raise lines.fail(line, f"offset beyond {MAX_ABS_VALUE:g} (implausibly large)")
     return vals
 
@@ -268,8 +270,10 @@ def load_joint_map(path: Path) -> JointMap:
         )
     scale = opts.get("scale", 1.0)
     up = opts.get("up", "y")
-    if not isinstance(scale, (int, float)) or not scale > 0:
-        raise AmorError(f"{path}: [options] scale must be a positive number")
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= MAX_ABS_VALUE:
+        raise AmorError(
+            f"{path}: [options] scale = {scale!r} must be a positive number (at most {MAX_ABS_VALUE:g})"
+        )
     if up not in ("y", "z"):
         raise AmorError(f'{path}: [options] up must be "y" or "z"')
     forward = opts.get("forward", "+x")

@@ -28,7 +28,7 @@ from amorctl.motion.source import (
     check_times,
     deepmimic_skeleton,
 )
-from amorctl.registry import hookimpl
+from amorctl.registry import impl as hookimpl
 
 #: Columns of one row after dt: joint -> number of values (4 = quaternion, 1 = hinge angle).
 ROW_LAYOUT: tuple[tuple[str, int], ...] = (

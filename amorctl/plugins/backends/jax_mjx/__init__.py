@@ -11,17 +11,20 @@ extra raises one :class:`AmorError` naming the extra.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import importlib.util
+import io
 from pathlib import Path
 from typing import Any
 
+from amorctl.api import hookimpl
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
 from amorctl.plugins.backends.jax_mjx.xla_cpu import disable_concurrency_optimized_scheduler
-from amorctl.registry import hookimpl
 
 disable_concurrency_optimized_scheduler()
 
@@ -74,6 +77,7 @@ class JaxMjxBackend:
         **options: Any,
     ) -> VectorEnv:
         """The MJX motion-tracking env (:class:`~.env.MjxTrackingEnv`) for ``character``."""
+        import_mjx_quietly()
         from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
         from amorctl.registry import get_registry
 
@@ -97,6 +101,14 @@ class JaxMjxBackend:
         from amorctl.plugins.backends.jax_mjx.policy import JaxPolicy
 
         return JaxPolicy(trainer_state, config.network)
+
+
+def import_mjx_quietly() -> None:
+    """Import ``mujoco.mjx`` without its chatter: where warp is not installed it prints ``Failed
+    to import warp: ...`` and ``Failed to import mujoco_warp: ...`` on stdout. The backend uses
+    MJX's JAX implementation, never warp, so the lines say nothing to its users."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        importlib.import_module("mujoco.mjx")
 
 
 def _load_library(character: str, dataset: str | Path | None) -> Any:

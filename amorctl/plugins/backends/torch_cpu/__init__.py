@@ -12,12 +12,12 @@ from typing import Any
 
 import torch
 
+from amorctl.api import hookimpl
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
-from amorctl.registry import hookimpl
 
 NAME = "torch-cpu"
 

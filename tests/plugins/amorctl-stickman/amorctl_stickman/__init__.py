@@ -1,7 +1,8 @@
-"""A third-party amorctl plugin: the 12-hinge 'stickman12' character.
+"""A third-party amorctl plugin: the 12-hinge 'stickman12' character and its ``amorctl stickman``
+commands.
 
 It lives in amorctl's test tree to prove that a separately installed package can add a character
-through the ``amorctl`` entry-point group, with no change to amorctl itself.
+and commands through the ``amorctl`` entry-point group, with no change to amorctl itself.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from amorctl.api import ActuatorModel, CharacterSpec, JointSpec, hookimpl
+from amorctl.api import ActuatorModel, CharacterSpec, CommandSpec, JointSpec, hookimpl
 
 _HERE = Path(__file__).parent
 _D = math.radians
@@ -61,3 +62,11 @@ SPEC = CharacterSpec(
 def amorctl_register_characters(register: Callable[[CharacterSpec], None]) -> None:
     """Provide stickman12."""
     register(SPEC)
+
+
+@hookimpl
+def amorctl_register_commands(register: Callable[[CommandSpec], None]) -> None:
+    """Provide ``amorctl stickman calibrate|joints``."""
+    from amorctl_stickman.commands import app
+
+    register(CommandSpec("stickman", app))
