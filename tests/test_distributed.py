@@ -426,6 +426,23 @@ def test_sweeps_call_the_policy_on_fixed_shape_blocks() -> None:
     assert shapes == [(4, 2)] * 3
 
 
+def test_a_rank_that_joined_a_group_ends_without_finalization(monkeypatch: pytest.MonkeyPatch) -> None:
+    from amorctl.cli import main as cli_main
+
+    ended: list[int] = []
+
+    def end(code: int) -> None:
+        ended.append(code)
+        raise SystemExit(code)
+
+    monkeypatch.setattr(cli_main, "end_process", end)
+    assert cli_main.main(["--version"]) == 0 and not ended  # no group joined: a normal return
+    monkeypatch.setattr(distributed, "_joined_a_group", True)
+    with pytest.raises(SystemExit):
+        cli_main.main(["train", "--no-such-option"])
+    assert ended == [2]  # the command's own status (a usage error here), after it returned
+
+
 def test_rank_rows_cover_every_row_once_in_order() -> None:
     for count in (0, 1, 7, 10):
         for size in (1, 2, 3):

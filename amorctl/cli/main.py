@@ -28,6 +28,7 @@ from amorctl.cli.output import json_stdout
 from amorctl.cli.plugin_commands import PluginCommands, build_plugin_commands
 from amorctl.core.errors import AmorError, AmorNote, AmorWarning
 from amorctl.core.files import WRITE_ERRNOS, storage_error
+from amorctl.core.process_exit import end_process
 
 #: subcommand -> (module under amorctl.cli, attribute): a ``typer.Typer`` sub-app or a command
 #: function; in the order ``amorctl --help`` lists them.
@@ -122,8 +123,14 @@ def _root(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero."""
-    return run_app(app, "amorctl", argv)
+    """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero. A rank of a
+    distributed command (``torchrun``) ends here, its outputs written, without interpreter
+    finalization (see :func:`amorctl.train.distributed.joined_a_group`)."""
+    code = run_app(app, "amorctl", argv)
+    distributed = sys.modules.get("amorctl.train.distributed")  # not imported: no group joined
+    if distributed is not None and distributed.joined_a_group():
+        end_process(code)
+    return code
 
 
 def _show_warning(previous: Any, message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:

@@ -17,8 +17,6 @@ unless told otherwise. Usage: docs/tune.md.
 from __future__ import annotations
 
 import contextlib
-import os
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -29,6 +27,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.live_auth import check_bind
+from amorctl.core.process_exit import end_process
 from amorctl.core.schedule import dump_schedule
 from amorctl.tune.session import PinnedMotion, StepRecord, geom_table
 
@@ -466,9 +465,7 @@ def end_live_process() -> NoReturn:
     threads of the server stack can still be in C code when the interpreter tears its modules
     down, which crashed ``tune --live`` with SIGSEGV at exit about once in 9 runs here. Every
     output (saved keyframes) is already written and closed when the page stops."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)
+    end_process(0)
 
 
 def _join_threads(threads: set[threading.Thread], timeout_s: float) -> None:
