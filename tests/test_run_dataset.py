@@ -183,3 +183,57 @@ def test_resume_with_the_same_relative_data_as_train(
     )
     assert code == 0, err
     assert json.loads(out)["end_iteration"] == 2
+
+
+def test_hlp_commands_take_the_runs_moved_dataset_with_data(
+    relative_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """``hlp train`` / ``hlp trace`` find a moved dataset with ``--data`` (the message says so);
+    another file is refused: an HLP runs on the clips its run was trained on."""
+    monkeypatch.setenv("AMORCTL_CACHE_DIR", str(tmp_path / "cache"))
+    run = tmp_path / "r"
+    shutil.copytree(relative_run / "runs" / "r", run)  # its config points at the fixture's dataset
+    moved = tmp_path / "moved.mcap"
+    shutil.copy(relative_run / "data" / "ds.mcap", moved)
+    config_path = run / "config.toml"
+    config_path.write_text(
+        config_path.read_text().replace(str(relative_run.resolve()), str(tmp_path / "gone"))
+    )
+    hlp = ["hlp", "train", str(run), "--out", str(tmp_path / "h"), "--window", "4"]
+    hlp += ["--iterations", "1", "--num-envs", "4", "--json"]
+    code, out, err = _run(capsys, *hlp)
+    assert code == 2 and "pass --data NEWPATH" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "h").exists()
+
+    other = tmp_path / "other.mcap"
+    other.write_bytes(moved.read_bytes() + b"\0")
+    code, out, err = _run(capsys, *hlp, "--data", str(other))
+    assert code == 2 and err.startswith(f"error: --data {other}: not the run's dataset"), err
+    assert "an HLP runs on its AMOR run's own dataset" in err and not (tmp_path / "h").exists()
+
+    code, out, err = _run(capsys, *hlp, "--data", str(moved))
+    assert code == 0, err
+    assert json.loads(out)["end_iteration"] == 1
+    code, out, err = _run(
+        capsys, "hlp", "trace", str(tmp_path / "h"), "--motion", "sway_a", "--data", str(moved), "--json"
+    )
+    assert code == 0, err
+    (trace,) = json.loads(out)["traces"]
+    assert trace["segments"][0]["motion"] == "sway_a" and trace["steps"] > 10
+
+
+def test_a_library_for_another_joint_order_names_the_first_difference() -> None:
+    from amorctl.envs.synthetic import synthetic_library
+    from amorctl.envs.tracking_env import _check_library
+    from amorctl.registry import get_registry
+
+    ch = get_registry().character("biped20")
+    lib = synthetic_library(ch, num_clips=1, seconds=0.5, seed=0)
+    names = list(lib.joint_names)
+    names[1], names[2] = names[2], names[1]
+    with pytest.raises(AmorError) as err:
+        _check_library(ch, dataclasses.replace(lib, joint_names=tuple(names)))
+    assert str(err.value) == (
+        f"motion library joints do not match the joints of character biped20: "
+        f"#1 is {names[1]!r}, the character's is {names[2]!r}"
+    )

@@ -172,10 +172,11 @@ def evaluate(
     if hlp:  # Table 2 with the high-level policy (amorctl.hlp.eval_discriminator)
         from amorctl.cli.hlp import evaluate_hlp
 
-        others = {"--schedule": schedule, "--sweep": sweep, "--video": video, "--data": data}
+        others = {"--schedule": schedule, "--sweep": sweep, "--video": video}
         evaluate_hlp(
-            run, hlp, weights, motion, compare, hlp_envs, hlp_seconds, disc_steps, seed, json_out, others
-        )
+            run, hlp, weights, motion, compare, hlp_envs, hlp_seconds, disc_steps, seed, json_out, others,
+            data,
+        )  # fmt: skip
         return
     opened = RunDir.open(run)
     config = opened.config_for_data(data)  # the run's dataset, moved or held-out clips

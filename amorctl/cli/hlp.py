@@ -24,6 +24,10 @@ app = typer.Typer(
 )
 
 MotionsOpt = Annotated[list[str] | None, typer.Option("--motion", "-m", help="Clip name (repeatable).")]
+RunDataOpt = Annotated[
+    Path | None,
+    typer.Option("--data", help="The AMOR run's own motion dataset where it is now (after it moved)."),
+]
 
 
 class _Display(TrainingView):
@@ -114,6 +118,7 @@ def train(
     seed: Annotated[int | None, typer.Option("--seed", help="Seed of env, networks, noise.")] = None,
     num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the HLP in --out.")] = False,
+    data: RunDataOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="JSON summary at the end, no live view.")] = False,
 ) -> None:
     """Train an HLP on the run's frozen AMOR policy with the discriminator reward r^D."""
@@ -142,7 +147,7 @@ def train(
     display = _Display(out, live=console.is_terminal and not json_out)
     try:
         result = train_hlp(
-            run, out, config, resume=resume,
+            run, out, config, resume=resume, data=data,
             on_start=None if json_out else display.on_start,
             on_iteration=None if json_out else display.on_iteration,
         )  # fmt: skip
@@ -182,6 +187,7 @@ def trace(
         Path | None, typer.Option("--compare", help="A second HLP directory to overlay.")
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Env seed.")] = 0,
+    data: RunDataOpt = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the traced weights as JSON.")] = False,
 ) -> None:
     """Run HLP + AMOR through motions back to back; plot w_t per objective (paper Fig. 7 / 8)."""
@@ -198,7 +204,7 @@ def trace(
     hlps = [load_hlp(hlp_dir)] + ([load_hlp(compare)] if compare is not None else [])
     if compare is not None and hlps[0].meta["run"] != hlps[1].meta["run"]:
         hlps[1].dir.check_matches(hlps[0].meta, f"HLP {hlp_dir}")
-    traces = [trace_hlp(h, list(motion), seconds, seed) for h in hlps]
+    traces = [trace_hlp(h, list(motion), seconds, seed, data) for h in hlps]
     if plot is not None:
         plot_traces(traces, plot)
     if out is not None:
@@ -304,6 +310,7 @@ def tune_with_hlp(
     run: Path, hlp_dir: Path, motion: str | None, scale: str | None, seconds: float | None,
     weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int,
     live: bool, host: str, port: int, save_to: Path, live_outputs: bool, token: str | None = None,
+    data: Path | None = None,
 ) -> tuple[Any, str, dict[str, Any]] | None:  # fmt: skip
     """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md).
 
@@ -326,7 +333,12 @@ def tune_with_hlp(
     if live and not 0 < port < 65536:
         raise AmorError(f"--port must be in 1..65535, got {port}")
     hlp = load_hlp(hlp_dir)
-    tenv = PinnedMotion(run, motion, seed=seed)
+    if data is not None:
+        from amorctl.hlp.run import OWN_DATA
+        from amorctl.train.rundir import RunDir
+
+        RunDir.open(run).relocate_dataset(data, required=OWN_DATA)
+    tenv = PinnedMotion(run, motion, seed=seed, dataset=data)
     try:
         check_hlp_for(tenv, hlp)
         scales = parse_scales(scale, tenv.names)
@@ -366,6 +378,7 @@ def print_hlp_weights(extra: dict[str, Any]) -> None:
 def evaluate_hlp(
     run: Path, hlp_dirs: list[Path], weights: str | None, motions: list[str] | None, compare: bool,
     envs: int, seconds: float, disc_steps: int, seed: int, json_out: bool, other_options: dict[str, Any],
+    data: Path | None = None,
 ) -> None:  # fmt: skip
     """``amorctl evaluate RUN --hlp HLPDIR --compare``: Table 2 (docs/hlp.md)."""
     from amorctl.hlp.eval_discriminator import TableOptions
@@ -376,7 +389,7 @@ def evaluate_hlp(
     if given:
         raise AmorError(f"--hlp (Table 2) takes no {', '.join(given)}")
     options = TableOptions(
-        num_envs=envs, seconds=seconds, steps=disc_steps, seed=seed, motions=tuple(motions or ())
+        num_envs=envs, seconds=seconds, steps=disc_steps, seed=seed, motions=tuple(motions or ()), data=data
     )
     options.check()
     table2(run, list(hlp_dirs), [weights] if weights else None, options, json_out)

@@ -173,15 +173,13 @@ def _tune_with_hlp(
     outputs and report as with fixed weights, plus the weights it chose."""
     from amorctl.cli.hlp import print_hlp_weights, tune_with_hlp
 
-    if data is not None:
-        raise AmorError("--hlp runs on the run's own dataset (the HLP was trained on it); drop --data")
     given = [out, plot, video]
     _check_outputs(given)
     if video is not None and video.suffix.lower() != ".mp4":
         raise AmorError(f"--video {video}: the file must end in .mp4")
     ran = tune_with_hlp(
         run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
-        save_to, any(p is not None for p in given), token,
+        save_to, any(p is not None for p in given), token, data,
     )  # fmt: skip
     if ran is None:  # the live page was served
         return

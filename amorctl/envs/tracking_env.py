@@ -450,13 +450,26 @@ def _check_clips(clips: np.ndarray, lib: MotionLibrary) -> np.ndarray:
     return clips
 
 
+def _first_difference(have: tuple[str, ...], want: tuple[str, ...]) -> str:
+    """Where two name lists first differ, e.g. ``"#3 is 'knee_l', the character's is 'hip_l'"``."""
+    for i, (a, b) in enumerate(zip(have, want, strict=False)):
+        if a != b:
+            return f"#{i} is {a!r}, the character's is {b!r}"
+    return f"the library has {len(have)}, the character {len(want)}"
+
+
 def _check_library(ch: CharacterSpec, lib: MotionLibrary) -> None:
     if lib.character != ch.name:
         raise AmorError(f"motion library is for character {lib.character!r}, not {ch.name!r}")
-    if tuple(lib.joint_names) != ch.joint_names():
-        raise AmorError(f"motion library joints do not match character {ch.name!r}'s joint order")
-    if tuple(lib.end_effectors) != tuple(ch.end_effectors):
-        raise AmorError(f"motion library end effectors do not match character {ch.name!r}'s")
+    for what, have, want in (
+        ("joints", tuple(lib.joint_names), ch.joint_names()),
+        ("end effectors", tuple(lib.end_effectors), tuple(ch.end_effectors)),
+    ):
+        if have != want:
+            raise AmorError(
+                f"motion library {what} do not match the {what} of character {ch.name}: "
+                f"{_first_difference(have, want)}"
+            )
     if lib.fps != ch.control_hz:
         raise AmorError(
             f"motion library is at {lib.fps} fps; character {ch.name!r} runs at {ch.control_hz} Hz"

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,6 +52,7 @@ class TableOptions:
     learning_rate: float = 3e-4  # Adam; 3x the HLP D's, as this D trains for a fixed, short budget
     seed: int = 0
     motions: tuple[str, ...] = ()
+    data: Path | None = None  # the run's own dataset where it is now (--data, after it moved)
 
     def check(self) -> None:
         bad = [
@@ -236,7 +238,10 @@ def _roll_conditions(
             source.dir.check_run(RunDir.open(run_path))
     cfg = HlpConfig()
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, motions=tuple(opts.motions)))
-    s = setup(run_path, cfg, num_envs=opts.num_envs, seed=opts.seed, episode_seconds=opts.seconds + 1.0)
+    s = setup(
+        run_path, cfg, num_envs=opts.num_envs, seed=opts.seed, episode_seconds=opts.seconds + 1.0,
+        data=opts.data,
+    )  # fmt: skip
     try:
         if s.view is None:
             raise AmorError("Table 2 (--hlp) needs a motion-tracking run")

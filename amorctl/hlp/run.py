@@ -49,6 +49,8 @@ META_FILE = "hlp.json"
 MATCH_KEYS = ("character", "objectives", "obs_dim", "observation_layout")
 #: run metadata every HLP checkpoint carries (the checkpoint format requires the first ones)
 CHECKPOINT_KEYS = ("backend", "env_kind", "action_dim", *MATCH_KEYS)
+#: why ``--data`` must be the run's own dataset for HLP commands
+OWN_DATA = "an HLP runs on its AMOR run's own dataset (the one it was trained on), moved or not"
 
 
 def policy_fingerprint(policy: Policy) -> str:
@@ -111,13 +113,17 @@ def setup(
     num_envs: int | None = None,
     seed: int | None = None,
     episode_seconds: float | None = None,
+    data: Path | None = None,
 ) -> HlpSetup:
     """Open the AMOR run, load its frozen policy, build its env with HLP-settable weights.
+    ``data``: the run's own dataset where it is now (``--data``, after the file moved).
 
     Raises:
-        AmorError: no run or checkpoint, a checkpoint iteration that does not exist, an unknown motion.
+        AmorError: no run or checkpoint, a missing checkpoint iteration, an unknown motion, bad ``data``.
     """
     run = RunDir.open(run_path)
+    if data is not None:
+        run.relocate_dataset(data, required=OWN_DATA)
     if llp_checkpoint is not None:
         ckpt = load_checkpoint(llp_checkpoint)
     else:
@@ -300,8 +306,10 @@ def train_hlp(
     on_iteration: Callable[[dict[str, float], int, float], None] | None = None,
     stop_after: int | None = None,
     stop_when: Callable[[dict[str, float]], bool] | None = None,
+    data: Path | None = None,
 ) -> HlpResult:
-    """Train (or resume) an HLP on the run ``run_path`` into ``out``.
+    """Train (or resume) an HLP on the run ``run_path`` into ``out``; ``data``: the run's own
+    dataset where it is now (see :func:`setup`).
 
     Raises:
         AmorError: the run has no checkpoint; ``out`` holds an HLP already (without ``resume``),
@@ -316,7 +324,7 @@ def train_hlp(
         hd, config, ckpt, llp_copy = _open_out(run_path, out, config, resume)
         if config.run.threads > 0:
             torch.set_num_threads(config.run.threads)
-        s = setup(run_path, config, llp_checkpoint=llp_copy)
+        s = setup(run_path, config, llp_checkpoint=llp_copy, data=data)
         if resume:
             hd.check_matches(s.meta, f"run {s.run.path}")
         reward = make_reward(s, config)

@@ -10,6 +10,7 @@ import torch
 from torch import nn
 
 from amorctl.core.errors import AmorError
+from amorctl.core.optimizer_state import check_param_groups, check_state
 
 
 def module_arrays(prefix: str, module: nn.Module) -> dict[str, np.ndarray]:
@@ -50,17 +51,29 @@ def optimizer_arrays(prefix: str, opt: torch.optim.Optimizer) -> tuple[dict[str,
 def load_optimizer(
     prefix: str, opt: torch.optim.Optimizer, arrays: dict[str, np.ndarray], meta: dict[str, Any]
 ) -> None:
-    """Inverse of :func:`optimizer_arrays`."""
-    sd = opt.state_dict()
-    state: dict[int, dict[str, torch.Tensor]] = {}
+    """Inverse of :func:`optimizer_arrays`, after checking the saved hyperparameters and state
+    against a fresh optimizer (:mod:`amorctl.core.optimizer_state`).
+
+    Raises:
+        AmorError: an array name that is not ``prefix/<parameter>/<key>``, or state or
+            hyperparameters a fresh optimizer would not have (the checkpoint was edited).
+    """
+    check_param_groups(meta.get("param_groups"), opt, f"HLP checkpoint's {prefix} param_groups")
+    saved: dict[str, dict[str, np.ndarray | None]] = {}
     for name, value in arrays.items():
         if not name.startswith(prefix + "/"):
             continue
-        idx, key = name[len(prefix) + 1 :].split("/", 1)
-        state.setdefault(int(idx), {})[key] = torch.as_tensor(np.asarray(value)).clone()
-    groups = []
-    for g, saved in zip(sd["param_groups"], meta["param_groups"], strict=True):
-        groups.append({**saved, "params": g["params"]})
+        parts = name[len(prefix) + 1 :].split("/", 1)
+        if len(parts) != 2:
+            raise AmorError(f"HLP checkpoint array {name!r}: expected {prefix}/<parameter index>/<state key>")
+        saved.setdefault(parts[0], {})[parts[1]] = np.asarray(value)
+    check_state(saved, opt, lambda index, key: f"{prefix}/{index}/{key}")
+    state = {
+        int(index): {key: torch.as_tensor(value).clone() for key, value in slot.items()}
+        for index, slot in saved.items()
+    }
+    fresh_groups = opt.state_dict()["param_groups"]
+    groups = [{**g, "params": f["params"]} for f, g in zip(fresh_groups, meta["param_groups"], strict=True)]
     opt.load_state_dict({"state": state, "param_groups": groups})
 
 

@@ -59,9 +59,11 @@ def _segments(clip: np.ndarray, names: tuple[str, ...]) -> list[tuple[int, int, 
     return out
 
 
-def trace_hlp(hlp: LoadedHlp, motions: list[str], seconds: float | None = None, seed: int = 0) -> HlpTrace:
+def trace_hlp(
+    hlp: LoadedHlp, motions: list[str], seconds: float | None = None, seed: int = 0, data: Path | None = None
+) -> HlpTrace:
     """Trace ``hlp`` on its AMOR run through ``motions`` (clip names), each for ``seconds``
-    (default: one pass of the clip).
+    (default: one pass of the clip); ``data``: the run's own dataset where it is now.
 
     Raises:
         AmorError: no motion given, an unknown motion, ``seconds`` <= 0, or the HLP's run no
@@ -72,7 +74,12 @@ def trace_hlp(hlp: LoadedHlp, motions: list[str], seconds: float | None = None, 
     if seconds is not None and seconds <= 0:
         raise AmorError(f"--seconds must be > 0, got {seconds}")
     s = setup(
-        hlp.meta["run"], hlp.config, llp_checkpoint=hlp.dir.llp_checkpoint_path(), num_envs=1, seed=seed
+        hlp.meta["run"],
+        hlp.config,
+        llp_checkpoint=hlp.dir.llp_checkpoint_path(),
+        num_envs=1,
+        seed=seed,
+        data=data,
     )
     try:
         hlp.dir.check_matches(s.meta, f"run {s.run.path}")
@@ -92,7 +99,7 @@ def trace_hlp(hlp: LoadedHlp, motions: list[str], seconds: float | None = None, 
             s.env.close()
             s = setup(
                 hlp.meta["run"], hlp.config, llp_checkpoint=hlp.dir.llp_checkpoint_path(), num_envs=1,
-                seed=seed, episode_seconds=(total + 2) * view.dt,
+                seed=seed, episode_seconds=(total + 2) * view.dt, data=data,
             )  # fmt: skip
             view = s.view
         env, m = s.env, len(s.meta["objectives"])

@@ -227,7 +227,10 @@ REHASHED_EDITS = {
         r"has parameters \[0, 1, 2, 3, 4, 5, 6, 7, 8\] \(an index duplicated, missing or permuted\)",
     ),
     "a permuted parameter index": (_params([0, 2, 1, 3, 4, 5, 6, 7, 8]), r"params = \[0, 2, 1, 3"),
-    "a parameter index spelled twice": (_alias_index, r"optimizer_state_keys has parameter index '01'"),
+    "a parameter index spelled twice": (
+        _alias_index,
+        r"optimizer state has parameter index '01'; this optimizer has parameters 0\.\.8",
+    ),
     "state swapped between parameters": (
         _swap_state,
         r"array 'optimizer\.1\.exp_avg' is float32\[8\]; parameter 1 needs float32\[8, 5\]",
@@ -270,6 +273,66 @@ def test_rehashed_checkpoint_edits_are_refused_by_the_checks_behind_the_hash(
             (run / f"{CKPT}.json").write_text(json.dumps(record))
         verdict = _resume_edited(run, edit)
         assert verdict.startswith(f"error: {run / CKPT}.json: ") and re.search(message, verdict), verdict
+
+
+HLP_EDITS = {
+    "Adam's exp_avg deleted": (
+        lambda a: a.pop("trainer/hlp_opt/0/exp_avg"),
+        r"optimizer state of parameter 0 has keys \['exp_avg_sq', 'step'\]; Adam keeps",
+    ),
+    "a parameter index spelled twice": (
+        lambda a: a.update(
+            {
+                f"trainer/hlp_opt/00/{k}": a[f"trainer/hlp_opt/0/{k}"]
+                for k in ("exp_avg", "exp_avg_sq", "step")
+            }
+        ),
+        r"optimizer state has parameter index '00'",
+    ),
+    "a moment of another shape": (
+        lambda a: a.update({"trainer/hlp_opt/1/exp_avg": a["trainer/hlp_opt/1/exp_avg"][:1]}),
+        r"array 'hlp_opt/1/exp_avg' is float32\[1, 3\]; parameter 1 needs float32\[8, 3\]",
+    ),
+    "a negative second moment": (
+        lambda a: a["trainer/hlp_opt/1/exp_avg_sq"].__setitem__((0, 0), -1.0),
+        r"array 'hlp_opt/1/exp_avg_sq' holds a non-finite or negative value",
+    ),
+}
+
+
+@pytest.mark.parametrize("edit", sorted(HLP_EDITS))
+def test_rehashed_hlp_optimizer_edits_are_refused_before_resume(
+    edit: str, toy_run: Path, tmp_path: Path
+) -> None:
+    """The HLP's Adam states (policy and discriminator) are checked against fresh optimizers on
+    resume, like MOPPO's: one line, exit 2, nothing changed."""
+    from amorctl.hlp.config import HlpConfig, merge
+    from amorctl.hlp.run import train_hlp
+    from amorctl.train.checkpoint import list_checkpoints
+
+    config = merge(
+        HlpConfig(),
+        {
+            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"num_envs": 4, "episode_seconds": 0.3},
+            "policy": {"actor_hidden": [8], "critic_hidden": [8]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+            "discriminator": {"reward": "objective:right"},
+        },
+        "test",
+    )
+    hd = tmp_path / "hlp"
+    train_hlp(toy_run, hd, config)
+    ((_, path),) = list_checkpoints(hd / "checkpoints")
+    change, message = HLP_EDITS[edit]
+    arrays = {k: v.copy() for k, v in load_file(str(path.with_suffix(".safetensors"))).items()}
+    change(arrays)
+    write_rehashed_checkpoint(path, json.loads(path.read_text()), arrays)
+    before = files_under(hd)
+    code, _, err = run_cli(["hlp", "train", str(toy_run), "--out", str(hd), "--resume", "--iterations", "2"])
+    assert code == 2 and err.count("\n") == 1 and re.search(message, err), err
+    assert "the optimizer state is damaged; resume from another checkpoint or start anew" in err
+    assert files_under(hd) == before
 
 
 @pytest.mark.parametrize("examples", EXAMPLES)
