@@ -7,6 +7,8 @@ measures the response to ``w`` with the science protocol (docs/science.md):
 - **sweeps**: for each objective k, ``w_k`` in {0, .1, ..., 1} with the rest sharing ``1 - w_k``
   equally, ``--episodes`` episodes per level, deterministic policy; Spearman rho of k's return
   against ``w_k``, monotonicity of the level means, effect size ``(mean[1] - mean[0]) / std[0]``;
+  the same rho over the episodes that survived, and of k's mean reward per step (return / length:
+  what the policy does while it is up, whatever the episode's length);
 - **front**: ``--front-samples`` Dirichlet(1) weights, one episode each; hypervolume (moocore,
   the fixed reference point of the report) and expected utility (EUM) over those weights.
 
@@ -20,6 +22,7 @@ is a seconds-long smoke version (tests/test_w_response.py).
     python benchmarks/w_response.py                                  # paper setting + CAPQL, 10 min
     python benchmarks/w_response.py --lever paper --lever advnorm --budget-steps 1000000 --no-capql
     python benchmarks/w_response.py --env toy --budget-minutes 0.1 --seeds 0 --no-capql --episodes 2
+    python benchmarks/w_response.py --measure runs/w-response/paper-s0 --out runs/w-remeasured  # no training
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from science_runs import git_commit, machine
 
 from amorctl.analysis.eval_env import sweep_weights
 from amorctl.analysis.front import expected_utility, hypervolume, non_dominated_fraction
-from amorctl.analysis.level_sweep import weight_sweep
+from amorctl.analysis.level_sweep import level_spearman, weight_sweep
 from amorctl.analysis.sweeps import pareto_sweep
 from amorctl.core.config import TrainConfig, override
 from amorctl.train.loop import train_run
@@ -199,7 +202,14 @@ def measure(
     for name in names:
         ws = weight_sweep(policy, config, name, levels=LEVELS, episodes=episodes, seed=seed)
         stats = level_stats(ws.levels, ws.returns, ws.survival)
-        stats["spearman_rho"] = None if math.isnan(ws.spearman_rho) else float(ws.spearman_rho)
+        stats["spearman_rho"] = _rho(ws.spearman_rho)
+        kept = np.asarray(ws.survived, dtype=bool)
+        stats["survivors"] = int(kept.sum())
+        stats["spearman_rho_survivors"] = _rho(
+            level_spearman(ws.levels, np.where(kept, ws.returns, np.nan))[0]
+        )
+        per_step = ws.returns / np.maximum(np.asarray(ws.lengths, dtype=np.float64), 1.0)
+        stats["spearman_rho_per_step"] = _rho(level_spearman(ws.levels, per_step)[0])
         sweeps[name] = stats
     ref = np.asarray(REFERENCE.get(env, np.full(len(names), -100.0)), dtype=np.float64)
     w, sampling = sweep_weights(len(names), samples, seed=seed)
@@ -218,16 +228,27 @@ def measure(
     }
 
 
+def _rho(value: float) -> float | None:
+    return None if math.isnan(value) else float(value)
+
+
 def _cell(values: Sequence[float | None], digits: int = 2) -> str:
     v = np.array([np.nan if x is None else x for x in values], dtype=np.float64)
     if np.isnan(v).all():
         return "–"
-    mean = np.nanmean(v)
+    mean, known = np.nanmean(v), int(np.isfinite(v).sum())
+    if known < len(v):  # some seeds had no value (e.g. no episode survived): say over how many
+        return (
+            f"{mean:.{digits}f} (of {known})"
+            if known == 1
+            else f"{mean:.{digits}f} ± {np.nanstd(v):.{digits}f} (of {known})"
+        )
     return f"{mean:.{digits}f} ± {np.nanstd(v):.{digits}f}" if len(v) > 1 else f"{mean:.{digits}f}"
 
 
 def summarize(results: list[dict[str, Any]], names: Sequence[str]) -> list[str]:
-    """Markdown rows: one per method, means ± std over seeds."""
+    """Markdown rows: one per method, means ± std over seeds; then rho over survivors and of the
+    reward per step."""
     rows = [
         "| method | seeds | env steps | " + " | ".join(f"ρ {n}" for n in names) + " | monotone | HV | EUM |",
         "|---|---|---|" + "---|" * len(names) + "---|---|---|",
@@ -242,6 +263,17 @@ def summarize(results: list[dict[str, Any]], names: Sequence[str]) -> list[str]:
             + f" | {mono}/{len(rs) * len(names)} | {_cell([r['front']['hypervolume'] for r in rs], 0)}"
             f" | {_cell([r['front']['eum'] for r in rs], 1)} |"
         )
+    survivors = " | ".join(f"ρ {n} (survivors)" for n in names)
+    per_step = " | ".join(f"ρ {n} per step" for n in names)
+    rows += ["", f"| method | {survivors} | {per_step} |", "|---|" + "---|" * (2 * len(names))]
+    for method in dict.fromkeys(r["method"] for r in results):
+        rs = [r for r in results if r["method"] == method]
+        cells = [
+            _cell([r["sweeps"][n].get(f"spearman_rho_{kind}") for r in rs])
+            for kind in ("survivors", "per_step")
+            for n in names
+        ]
+        rows.append(f"| {method} | " + " | ".join(cells) + " |")
     return rows
 
 
@@ -279,7 +311,40 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         metavar="JSON",
         help="train nothing: merge these reports (runs split over processes) into --out and print the table",
     )
+    p.add_argument(
+        "--measure",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="RUN",
+        help="train nothing: measure these MOPPO run directories (named LEVER-sSEED) with this protocol",
+    )
     return p.parse_args(argv)
+
+
+def measured_runs(runs: Sequence[Path]) -> list[tuple[str, int, Callable[[], Any]]]:
+    """Jobs that open existing run directories (``LEVER-sSEED``, as this script names them)
+    instead of training; their figures come from the run's last metrics row."""
+    import csv
+
+    jobs = []
+    for path in runs:
+        run = RunDir.open(path)
+        lever = path.name.rsplit("-s", 1)[0]
+
+        def job(run: RunDir = run) -> Any:
+            with (run.path / "metrics.csv").open() as f:
+                last = list(csv.DictReader(f))[-1]
+            figures = {
+                "env_steps": int(float(last["env_steps"])),
+                "iterations": int(float(last["iteration"])),
+                "train_survival": float(last.get("episode/survival") or "nan"),
+                "run": str(run.path),
+            }
+            return run.policy(), run.config, figures
+
+        jobs.append((f"moppo:{lever}", run.config.run.seed, job))
+    return jobs
 
 
 def collect(paths: Sequence[Path], out: Path) -> dict[str, Any]:
@@ -343,19 +408,23 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 return pol, config, figures
 
             jobs.append(("capql", seed, run_capql))
+    if a.measure:
+        jobs = measured_runs(a.measure)
     for method, seed, job in jobs:
         print(f"== {method} seed {seed}", flush=True)
         policy, config, figures = job()
         began = time.perf_counter()
+        testbed = "toy" if config.env.kind == "toy" else f"gym:{config.env.gym_id}"  # --measure: the run's
+        report["env"] = testbed
         measured = measure(
-            policy, config, a.env, episodes=a.episodes, samples=a.front_samples, seed=a.eval_seed
+            policy, config, testbed, episodes=a.episodes, samples=a.front_samples, seed=a.eval_seed
         )
         names = tuple(policy.objectives)
         row = {"method": method, "seed": seed, **figures, **measured, "eval_s": time.perf_counter() - began}
         report["results"].append(row)
         rhos = " ".join(f"{n} {s['spearman_rho']}" for n, s in measured["sweeps"].items())
         print(
-            f"   {figures['env_steps']:,} env steps in {figures['wall_s']:.0f} s; rho {rhos}; "
+            f"   {figures['env_steps']:,} env steps in {figures.get('wall_s', math.nan):.0f} s; rho {rhos}; "
             f"HV {measured['front']['hypervolume']:.4g}, EUM {measured['front']['eum']:.4g}",
             flush=True,
         )

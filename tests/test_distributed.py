@@ -221,11 +221,11 @@ def main_train(directory: Path, world: distributed.World) -> None:
 
 def main_cli(directory: Path, world: distributed.World) -> None:
     """``amorctl train`` on this rank (the CLI joins the group from the environment itself)."""
-    from amorctl.cli.main import main
+    from amorctl.cli.main import run as amorctl  # the console script's entry point
 
     run = directory / "run"
     how = ["--resume"] if (run / "config.toml").exists() else ["--config", str(directory / "long.toml")]
-    sys.exit(main(["train", "--out", str(run), "--json", *how]))
+    amorctl(["train", "--out", str(run), "--json", *how])
 
 
 def sweep_commands(directory: Path) -> tuple[list[str], list[str]]:
@@ -436,10 +436,13 @@ def test_a_rank_that_joined_a_group_ends_without_finalization(monkeypatch: pytes
         raise SystemExit(code)
 
     monkeypatch.setattr(cli_main, "end_process", end)
-    assert cli_main.main(["--version"]) == 0 and not ended  # no group joined: a normal return
+    with pytest.raises(SystemExit) as exit_:
+        cli_main.run(["--version"])
+    assert exit_.value.code == 0 and not ended  # no group joined: a normal exit
     monkeypatch.setattr(distributed, "_joined_a_group", True)
+    assert cli_main.main(["--version"]) == 0 and not ended  # main() itself only returns
     with pytest.raises(SystemExit):
-        cli_main.main(["train", "--no-such-option"])
+        cli_main.run(["train", "--no-such-option"])
     assert ended == [2]  # the command's own status (a usage error here), after it returned
 
 

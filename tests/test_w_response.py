@@ -29,6 +29,7 @@ def test_toy_testbed_trains_measures_and_collects(tmp_path: Path) -> None:
         sweep = row["sweeps"][name]
         assert len(sweep["mean"]) == 11 and sweep["levels"][0] == 0.0 and sweep["levels"][-1] == 1.0
         assert sweep["spearman_rho"] > 0.5, (name, sweep)  # the toy task responds to w within seconds
+        assert 0 <= sweep["survivors"] <= 44 and sweep["spearman_rho_per_step"] > 0.5, (name, sweep)
     assert row["front"]["hypervolume"] > 0 and row["front"]["reference_point"] == [-100.0, -100.0]
     assert 0 < row["front"]["non_dominated_fraction"] <= 1
     # two reports (as from two processes) merge into one table with both seeds
@@ -46,3 +47,11 @@ def test_toy_testbed_trains_measures_and_collects(tmp_path: Path) -> None:
     )
     assert [r["seed"] for r in merged["results"]] == [0, 1]
     assert merged["table"][2].startswith("| moppo:paper | 2 |")
+    assert merged["table"][6].startswith("| moppo:paper | ") and "per step" in merged["table"][4]
+
+    # measuring the trained run again (no training) gives the same sweeps: rollouts are seeded
+    measure = ["--measure", str(tmp_path / "a" / "paper-s0"), "--out", str(tmp_path / "d")]
+    again = w_response.main([*measure, "--episodes", "4", "--front-samples", "16"])
+    (remeasured,) = again["results"]
+    assert remeasured["method"] == "moppo:paper" and remeasured["seed"] == 0
+    assert remeasured["env_steps"] == row["env_steps"] and remeasured["sweeps"] == row["sweeps"]

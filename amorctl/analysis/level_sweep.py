@@ -32,6 +32,7 @@ class WeightSweep:
         spearman_rho, spearman_p: rank correlation between weight and return over all L * E
             episodes, and its p-value (NaN when undefined, e.g. all returns equal).
         motion: per-level action rate and joint-velocity sums (None: steps not recorded).
+        lengths: [L, E] control steps per episode (None: not kept); not in :meth:`to_dict`.
     """
 
     objective: str
@@ -42,6 +43,7 @@ class WeightSweep:
     spearman_p: float
     survived: np.ndarray | None = None
     motion: MotionSums | None = None
+    lengths: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -121,10 +123,13 @@ def weight_sweep(
     returns[eps.env] = eps.returns[:, idx]
     survived = np.zeros(n)
     survived[eps.env] = eps.survived
+    lengths = np.zeros(n, dtype=np.int64)
+    lengths[eps.env] = eps.length
+    lengths = lengths.reshape(n_lv, episodes)
     returns = returns.reshape(n_lv, episodes)
     rho, p = level_spearman(w[:, idx], returns)
     kept = survived.reshape(n_lv, episodes) > 0.5
-    return WeightSweep(objective, w[:, idx], returns, kept.mean(axis=1), rho, p, kept, motion)
+    return WeightSweep(objective, w[:, idx], returns, kept.mean(axis=1), rho, p, kept, motion, lengths)
 
 
 def level_spearman(levels: np.ndarray, returns: np.ndarray) -> tuple[float, float]:

@@ -16,7 +16,7 @@ import importlib
 import os
 import sys
 import warnings
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 import typer.main
@@ -123,14 +123,19 @@ def _root(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; user-fixable failures print ``error: <message>`` and exit non-zero. A rank of a
-    distributed command (``torchrun``) ends here, its outputs written, without interpreter
-    finalization (see :func:`amorctl.train.distributed.joined_a_group`)."""
-    code = run_app(app, "amorctl", argv)
+    """Run the CLI and return its exit status; user-fixable failures print ``error: <message>``."""
+    return run_app(app, "amorctl", argv)
+
+
+def run(argv: list[str] | None = None) -> NoReturn:
+    """The ``amorctl`` console script and ``python -m amorctl``: :func:`main`, then exit with its
+    status. A rank of a distributed command (``torchrun``) ends without interpreter finalization,
+    its outputs written (see :func:`amorctl.train.distributed.joined_a_group`)."""
+    code = main(argv)
     distributed = sys.modules.get("amorctl.train.distributed")  # not imported: no group joined
     if distributed is not None and distributed.joined_a_group():
         end_process(code)
-    return code
+    sys.exit(code)
 
 
 def _show_warning(previous: Any, message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
@@ -181,4 +186,4 @@ def run_app(typer_app: typer.Typer, prog_name: str, argv: list[str] | None = Non
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
