@@ -119,7 +119,8 @@ def _check_state(path: Path, where: str, value: Any) -> None:
     """Walk a JSON state (trainer or env): RNG states, clip indices and counts must be well typed."""
     if isinstance(value, dict):
         if "bit_generator" in value:
-            generator = _BIT_GENERATORS.get(value.get("bit_generator"))  # type: ignore[arg-type]
+            name = value.get("bit_generator")
+            generator = _BIT_GENERATORS.get(name) if isinstance(name, str) else None
             if generator is None:
                 raise AmorError(f"{path}: {where}: unknown random generator {value.get('bit_generator')!r}")
             try:

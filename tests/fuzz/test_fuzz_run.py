@@ -227,6 +227,10 @@ REHASHED_EDITS = {
         r"has parameters \[0, 1, 2, 3, 4, 5, 6, 7, 8\] \(an index duplicated, missing or permuted\)",
     ),
     "a permuted parameter index": (_params([0, 2, 1, 3, 4, 5, 6, 7, 8]), r"params = \[0, 2, 1, 3"),
+    "a generator name that is a list": (  # found by the slow fuzz run: a raw TypeError before
+        lambda r, a: r["env"]["rng"].update(bit_generator=[]),
+        r"unknown random generator \[\]",
+    ),
     "a parameter index spelled twice": (
         _alias_index,
         r"optimizer state has parameter index '01'; this optimizer has parameters 0\.\.8",
