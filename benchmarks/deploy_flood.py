@@ -1,4 +1,4 @@
-"""The deploy runtime under a flood of live-weight datagrams (issue 27): are its ticks still on time?
+"""The deploy runtime under a flood of live-weight datagrams: are its ticks still on time?
 
 Runs ``Runtime.run`` in real time (``--realtime``: 50 ticks/s, a deadline per tick) on a bundle
 with the live UDP input on 127.0.0.1, while a second process sends ``--rate`` datagrams a second

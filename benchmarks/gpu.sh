@@ -7,7 +7,7 @@
 #   ENVS="4096 8192 16384" CHARACTERS="biped20" bash benchmarks/gpu.sh
 #   VENV=/path/to/env PYTHON=python3.11 bash benchmarks/gpu.sh
 #
-# Target (issue 14): >= 150k env steps/s for biped20 training on one H100/H200-class GPU.
+# Target: >= 150k env steps/s for biped20 training on one H100/H200-class GPU.
 # Results go into docs/backends.md ("GPU figures"), with the GPU model and the JAX version.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,4 @@
-"""The training levers of issue 13 (docs/moppo.md, "Levers"), measured cheaply by fine-tuning.
+"""The weight-response training levers (docs/moppo.md, "Levers"), measured cheaply by fine-tuning.
 
 Protocol: every variant continues the same trained run (``--base``, e.g. the quick-preset biped20
 walking run ``runs/b20walk``) from its newest checkpoint for the same number of iterations, with

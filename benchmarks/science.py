@@ -1,4 +1,4 @@
-"""Issue 13's measurement protocol: does the one AMOR policy obey ``w``? Writes ``docs/science.md``.
+"""The weight-response measurement protocol: does the one AMOR policy obey ``w``? Writes ``docs/science.md``.
 
 On a character's walking clips (``walk``, ``walker/*``: the selection of
 ``benchmarks/learn_biped20_walk.py``), in this order, each part saving what it measured to

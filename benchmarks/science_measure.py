@@ -1,4 +1,4 @@
-"""The measurements of ``benchmarks/science.py`` (issue 13): each takes a trained policy and the
+"""The measurements of ``benchmarks/science.py``: each takes a trained policy and the
 run's config and returns a JSON-ready dict. Rollouts go through the library
 (:mod:`amorctl.analysis`), exactly as ``amorctl evaluate --sweep`` and ``amorctl pareto`` do.
 

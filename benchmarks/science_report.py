@@ -1,4 +1,4 @@
-"""Pure helpers of ``benchmarks/science.py``: the statistics of issue 13's targets and the report.
+"""Pure helpers of ``benchmarks/science.py``: the statistics of the weight-response targets and the report.
 
 Nothing here trains or steps a simulator: every function takes arrays or the results dict that
 ``science.py`` accumulates in ``OUT/science.json`` and returns numbers or text, so a partial run
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-#: Claim (ii) targets: Spearman rho, survival at every level (issue 13).
+#: Claim (ii) targets: Spearman rho, survival at every level.
 RHO_TARGET = 0.9
 SURVIVAL_TARGET = 0.9
 #: Claim (i) target: fraction of Dirichlet weights whose point is non-dominated.

@@ -20,7 +20,7 @@ def _fresh_registry(monkeypatch: pytest.MonkeyPatch):
     reset_registry()
 
 
-# --- trained runs shared by the evaluation tests (issue 6): trained once per session, in seconds ---
+# --- trained runs shared by the evaluation tests: trained once per session, in seconds ---
 TOY_RUN_TOML = {
     "run": {"iterations": 150, "checkpoint_every": 150, "keep_checkpoints": 1, "tensorboard": False,
             "threads": 1},
@@ -49,6 +49,24 @@ def toy_run(tmp_path_factory: pytest.TempPathFactory):
         torch.set_num_threads(threads)
     reset_registry()
     return out
+
+
+@pytest.fixture(scope="session")
+def toy_hlp_config():
+    """A one-iteration HLP config for the toy run (tiny nets, the ``right`` objective as reward)."""
+    from amorctl.hlp.config import HlpConfig, merge
+
+    return merge(
+        HlpConfig(),
+        {
+            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"num_envs": 4, "episode_seconds": 0.3},
+            "policy": {"actor_hidden": [8], "critic_hidden": [8]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+            "discriminator": {"reward": "objective:right"},
+        },
+        "test",
+    )
 
 
 def train_tiny_tracking_run(root: Path, label: str, **env: object) -> Path:
@@ -103,7 +121,7 @@ def tracking_run(tmp_path_factory: pytest.TempPathFactory):
     return train_tiny_tracking_run(tmp_path_factory.mktemp("tracking-run"), "tracking_run fixture")
 
 
-# --- a trained toy-smooth run (issue 7's smooth-schedule test): `track` vs `smooth`, seconds ---
+# --- a trained toy-smooth run (the smooth-schedule test): `track` vs `smooth`, seconds ---
 TOY_SMOOTH_RUN_TOML = {
     "run": {"iterations": 40, "checkpoint_every": 40, "keep_checkpoints": 1, "tensorboard": False,
             "threads": 1, "seed": 0},

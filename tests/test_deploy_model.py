@@ -1,4 +1,4 @@
-"""A deploy bundle carries its character's model (issue 26): the MJCF, its includes, the meshes and
+"""A deploy bundle carries its character's model: the MJCF, its includes, the meshes and
 textures it references (meshdir / texturedir / assetdir resolved as MuJoCo does) and the licence
 found beside it; the copy compiles to the model that was trained."""
 

@@ -1,4 +1,4 @@
-"""Data-parallel MOPPO over ``torch.distributed`` (issue 17), on loopback with 2 processes.
+"""Data-parallel MOPPO over ``torch.distributed``, on loopback with 2 processes.
 
 Each test starts two ranks as plain subprocesses with torchrun's environment variables (RANK,
 WORLD_SIZE, MASTER_ADDR=127.0.0.1, a free MASTER_PORT, gloo bound to ``lo``); the ranks run

@@ -1,4 +1,4 @@
-"""Rollouts, `amorctl pareto` and `amorctl evaluate` (issue 6): fronts, metrics, sweeps, videos, errors."""
+"""Rollouts, `amorctl pareto` and `amorctl evaluate`: fronts, metrics, sweeps, videos, errors."""
 
 from __future__ import annotations
 

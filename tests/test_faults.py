@@ -1,4 +1,4 @@
-"""Faults beyond bad files (issue 27): the disk fills while a checkpoint or a dataset is written,
+"""Faults beyond bad files: the disk fills while a checkpoint or a dataset is written,
 the run directory or the dataset cache is read-only, two writers share one run directory, the
 dataset cache is damaged between runs. Each: one ``error:`` line (or one ``note:`` and the
 command goes on), nothing partial left, no earlier result lost."""
@@ -18,6 +18,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -434,24 +435,12 @@ def test_the_lock_is_held_once_per_process_and_released(tmp_path: Path) -> None:
 
 
 def test_a_second_hlp_train_on_the_same_directory_is_refused(
-    toy_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+    toy_run: Path, toy_hlp_config: Any, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    from amorctl.hlp.config import HlpConfig, merge
     from amorctl.hlp.run import train_hlp
 
-    config = merge(
-        HlpConfig(),
-        {
-            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
-            "env": {"num_envs": 4, "episode_seconds": 0.3},
-            "policy": {"actor_hidden": [8], "critic_hidden": [8]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
-            "discriminator": {"reward": "objective:right"},
-        },
-        "test",
-    )
     hd = tmp_path / "hlp"
-    train_hlp(toy_run, hd, config)
+    train_hlp(toy_run, hd, toy_hlp_config)
     before = tree(hd)
     with lock_holder(hd) as holder:
         code, _, err = run_cli(capsys, "hlp", "train", toy_run, "--out", hd, "--resume", "--iterations", "2")

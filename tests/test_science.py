@@ -1,4 +1,4 @@
-"""The pure helpers of benchmarks/science.py (issue 13's statistics and report): fast, no training."""
+"""The pure helpers of benchmarks/science.py (weight-response statistics, report): fast, no training."""
 
 from __future__ import annotations
 

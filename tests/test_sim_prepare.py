@@ -1,4 +1,4 @@
-"""Model files as they come (issue 16): sensors by name, spec gains applied, a floor, per-joint
+"""Model files as they come: sensors by name, spec gains applied, a floor, per-joint
 armature and friction, mesh-accurate lowest points, clear refusals."""
 
 from __future__ import annotations

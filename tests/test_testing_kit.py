@@ -1,4 +1,4 @@
-"""The plugin authors' testing kit (issue 16): the built-in plugins and the stickman fixture pass
+"""The plugin authors' testing kit: the built-in plugins and the stickman fixture pass
 its contract suites, and the suites catch broken plugins."""
 
 from __future__ import annotations

@@ -204,7 +204,7 @@ def _smooth_switch(tenv: PinnedMotion, tmp_path: Path, lo: float, hi: float) -> 
 def test_raising_smooth_half_way_lowers_the_action_rate_after_the_switch(
     toy_smooth_run: Path, tmp_path: Path
 ) -> None:
-    # Issue 7: on a trained toy policy (track a jumping target vs the `smooth` action-rate
+    # On a trained toy policy (track a jumping target vs the `smooth` action-rate
     # penalty), raising `smooth` half-way makes the policy hold still from the switch on.
     tenv = PinnedMotion(toy_smooth_run)
     assert tenv.names == ("track", "smooth")

@@ -242,7 +242,7 @@ def train_run(
             if world.is_main and out.exists() and not out.is_dir():
                 raise AmorError(f"{out}: --out must be a directory, not a file")
             if world.is_main:  # before any work: a read-only run directory, another writer
-                check_writable(out, "run directory", _READ_ONLY_TODO[resume])
+                check_writable(out, "run directory", _READ_ONLY_REMEDY[resume])
                 lock.enter_context(dir_lock(out, "run directory"))
             if resume:  # under the lock: the newest checkpoint cannot change any more
                 ckpt = run.checkpoint()
@@ -265,7 +265,7 @@ def train_run(
 
 
 #: what to do about a read-only run directory, new run (False) or resumed (True)
-_READ_ONLY_TODO = {
+_READ_ONLY_REMEDY = {
     False: "make it writable or choose another --out",
     True: "make it writable (or copy the run to a writable place and resume there)",
 }

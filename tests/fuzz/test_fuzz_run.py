@@ -306,27 +306,15 @@ HLP_EDITS = {
 
 @pytest.mark.parametrize("edit", sorted(HLP_EDITS))
 def test_rehashed_hlp_optimizer_edits_are_refused_before_resume(
-    edit: str, toy_run: Path, tmp_path: Path
+    edit: str, toy_run: Path, toy_hlp_config: Any, tmp_path: Path
 ) -> None:
     """The HLP's Adam states (policy and discriminator) are checked against fresh optimizers on
     resume, like MOPPO's: one line, exit 2, nothing changed."""
-    from amorctl.hlp.config import HlpConfig, merge
     from amorctl.hlp.run import train_hlp
     from amorctl.train.checkpoint import list_checkpoints
 
-    config = merge(
-        HlpConfig(),
-        {
-            "run": {"iterations": 1, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
-            "env": {"num_envs": 4, "episode_seconds": 0.3},
-            "policy": {"actor_hidden": [8], "critic_hidden": [8]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
-            "discriminator": {"reward": "objective:right"},
-        },
-        "test",
-    )
     hd = tmp_path / "hlp"
-    train_hlp(toy_run, hd, config)
+    train_hlp(toy_run, hd, toy_hlp_config)
     ((_, path),) = list_checkpoints(hd / "checkpoints")
     change, message = HLP_EDITS[edit]
     arrays = {k: v.copy() for k, v in load_file(str(path.with_suffix(".safetensors"))).items()}

@@ -71,7 +71,7 @@ def test_mismatched_names_are_refused_saying_which(tmp_path, biped_walk):
 
 
 def test_without_names_the_character_order_is_checked_by_kinematics(tmp_path, biped_walk):
-    """Issue 16: no joint_names -> the character's order, verified by FK against body positions."""
+    """No joint_names -> the character's order, verified by FK against body positions."""
     kin, motion = biped_walk
     order = np.arange(kin.spec.num_joints)
     path = write_npz(tmp_path / "nonames.npz", kin, motion, order, joint_names=None)
@@ -96,7 +96,7 @@ def test_root_body_must_exist(tmp_path, biped_walk):
         import_file(path, None, _opts(kin))
 
 
-# --- what robot-learning packages ship (issue 26): layouts rebuilt here from a biped20 clip ---
+# --- what robot-learning packages ship: layouts rebuilt here from a biped20 clip ---
 
 
 def _all_bodies(kin, motion, with_world: bool) -> tuple[list[str], np.ndarray, np.ndarray]:
