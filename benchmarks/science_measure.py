@@ -14,13 +14,14 @@ from typing import Any
 import numpy as np
 from science_report import hv_reference, level_stats
 
-from amorctl.analysis.eval_env import close_env, episode_limit, make_eval_env, sweep_weights
+from amorctl.analysis.eval_env import episode_limit, make_eval_env, sweep_weights
 from amorctl.analysis.front import hypervolume, non_dominated_fraction
 from amorctl.analysis.level_sweep import weight_sweep
 from amorctl.analysis.rollout import rollout
 from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, pareto_sweep
 from amorctl.analysis.tracking_metrics import evaluate_setting
 from amorctl.core.config import TrainConfig
+from amorctl.core.vecenv import close_env
 from amorctl.core.weights import format_weights, parse_weights
 
 

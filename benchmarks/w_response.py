@@ -65,6 +65,13 @@ LEVERS: dict[str, dict[str, Any]] = {
     "survival_channel+advnorm": {"ppo__survival_channel": True, "ppo__return_norm": "value+advantage"},
     # the same 2048 samples per iteration from 4x as many episodes, so 4x as many weights
     "wide": {"env__num_envs": 256, "ppo__num_steps": 8},
+    # the biped's clearest lever (docs/moppo.md): corners and the sweep lines trained on purpose
+    "mix": {"weights__corner_fraction": 0.1, "weights__axis_fraction": 0.3},
+    "mix+advnorm": {
+        "weights__corner_fraction": 0.1,
+        "weights__axis_fraction": 0.3,
+        "ppo__return_norm": "value+advantage",
+    },
 }
 
 

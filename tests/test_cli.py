@@ -6,11 +6,14 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from amorctl import __version__
 from amorctl.cli.main import main
+from amorctl.core.config import load_preset
+from amorctl.core.errors import AmorError
 
 
 def run(capsys: pytest.CaptureFixture, *args: str) -> tuple[int, str, str]:
@@ -102,3 +105,30 @@ def test_usage_error_exits_non_zero() -> None:
     proc = _console("characters", "frobnicate")
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
+
+
+def _train_context(args: list[str]):
+    import typer
+    import typer.main
+
+    from amorctl.cli import train as cli_train
+
+    app = typer.Typer()
+    app.command()(cli_train.train)
+    return typer.main.get_command(app).make_context("train", args)
+
+
+def test_train_options_map_to_config_fields_by_parameter_name(tmp_path: Path) -> None:
+    """A train option named SECTION__KEY sets that config field; errors name its flag; torchrun's
+    ranks get the same options (without --nproc, with --out fixed)."""
+    from amorctl.cli import train as cli_train
+
+    ctx = _train_context(["-c", "humanoid36", "--num-envs", "8", "--seed", "3", "--json", "--nproc", "2"])
+    overrides, flags = cli_train._command_line(ctx)
+    assert overrides == {"env": {"character": "humanoid36", "num_envs": 8}, "run": {"seed": 3}}
+    assert flags[("env", "num_envs")] == "--num-envs" and flags[("env", "dataset")] == "--data"
+    assert cli_train._relaunch_args(ctx, tmp_path / "r") == [
+        "--character", "humanoid36", "--out", str(tmp_path / "r"), "--seed", "3", "--num-envs", "8", "--json"
+    ]  # fmt: skip
+    with pytest.raises(AmorError, match=r"^--num-envs: "):
+        cli_train._apply_flags(load_preset("quick"), {"env": {"num_envs": 0}}, flags)

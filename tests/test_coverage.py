@@ -16,10 +16,11 @@ from amorctl.analysis.coverage import (
     stratified_weights,
     training_episodes,
 )
-from amorctl.analysis.eval_env import close_env, episode_limit, make_eval_env
+from amorctl.analysis.eval_env import episode_limit, make_eval_env
 from amorctl.analysis.schemas import COVERAGE_JSON_SCHEMA
 from amorctl.cli.main import main
 from amorctl.core.simplex_regions import NUM_BINS, region_index
+from amorctl.core.vecenv import close_env
 from amorctl.envs.wrappers import FixedWeights
 from amorctl.train.rundir import RunDir
 

@@ -696,18 +696,13 @@ def test_listen_binds_beyond_loopback_only_with_a_token() -> None:
         parse_message(b'{"weights": [true, 1, 1]}', ["up", "lo", "x"])
 
 
-def test_checkpoint_style_policy_arrays_convert_to_the_exporters_names(deploy_run: Path) -> None:
+def test_policy_arrays_without_the_backend_neutral_names_are_refused() -> None:
     from amorctl.core.contracts import Snapshot
-    from amorctl.deploy.export import neutral_arrays
-    from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays
-    from amorctl.train.rundir import RunDir
+    from amorctl.deploy.export import policy_arrays
 
-    policy = RunDir.open(deploy_run).policy()
-    modules = {"actor": policy.actor, "critic": policy.critic, "normalizer": policy.normalizer}
-    style = Snapshot(modules_to_arrays(modules), {"normalizer_eps": policy.normalizer.eps, "obs_clip": 10.0})
-    arrays, meta = neutral_arrays(style)  # the names the jax-mjx backend hands out
-    want = policy.export_arrays()
-    assert meta["actor_layers"] == want.meta["actor_layers"] == 2
-    for key, value in want.arrays.items():
-        if key != "actor/log_std":
-            np.testing.assert_array_equal(arrays[key], value)
+    style = Snapshot({"normalizer.mean": np.zeros(3), "actor.net.0.weight": np.zeros((2, 3))}, {})
+    with pytest.raises(AmorError, match="no normalizer/mean, normalizer/scale, actor/0/weight"):
+        policy_arrays(style)
+    names = ("normalizer/mean", "normalizer/scale", "actor/0/weight")
+    ok = Snapshot({name: np.zeros(3) for name in names}, {})
+    assert set(policy_arrays(ok)[0]) == set(names)

@@ -73,6 +73,29 @@ def jax_side(trainer, batch, config: TrainConfig):
     return nets, params, stats, jb, cfg
 
 
+def test_both_backends_name_their_parameters_through_one_function() -> None:
+    """Checkpoint interchange rests on one naming rule (host.linear_param_name): torch-cpu's
+    modules produce exactly those names, and jax-mjx writes the same set; a change to either
+    side's network layout fails here."""
+    from amorctl.plugins.backends.host import LOG_STD, linear_param_name
+
+    config = tiny_config(network__actor_hidden=[32, 16], network__critic_hidden=[8])
+    trainer = TorchCpuBackend().make_trainer(ToyTradeoffEnv(8, max_steps=5), config)
+    torch_names = set(modules_to_arrays({"actor": trainer.actor, "critic": trainer.critic}))
+    expected = {LOG_STD} | {
+        linear_param_name(net, i, part)
+        for net, layers in (("actor", 3), ("critic", 2))
+        for i in range(layers)
+        for part in ("weight", "bias")
+    }
+    assert torch_names == expected
+    nets = Networks(5, 1, 2, [32, 16], [8], 1.0)
+    jax_arrays = params_to_arrays(nets.init(jax.random.key(0)))
+    assert set(jax_arrays) == expected
+    for name in expected:
+        assert jax_arrays[name].shape == trainer.state_dict().arrays[name].shape, name
+
+
 def test_gae_matches_torch_with_truncation_and_termination() -> None:
     rng = np.random.default_rng(0)
     T, N, m = 12, 5, 3

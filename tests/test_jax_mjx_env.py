@@ -132,6 +132,7 @@ def test_mjx_env_rewards_and_observations_equal_torch_cpus(
     C env on the reference servo, which applies the servo torque explicitly, departs from the
     native one there (an observed joint velocity by 1.6e-2), so this case does exercise it."""
     c, j = env_pair(character, contacts)
+    assert j.reward_space.survival_bonus == c.reward_space.survival_bonus == 1.0  # declared alike
     explicit = None
     if character == "biped20":
         explicit = c_env(character, c.library, servo="python")

@@ -103,3 +103,42 @@ def test_known_mo_gymnasium_tasks_name_their_objectives_and_declare_the_survival
     assert known_rewards("mo-hopper-v5", 2) == (None, 0.0)  # cost_objective=False: 2 objectives
     assert known_rewards("mo-halfcheetah-v5", 2) == (None, 0.0)
     assert known_rewards("", 3) == (None, 0.0)
+
+
+def test_weight_levers_reach_the_gym_and_toy_envs() -> None:
+    """[weights] options draw the gym adapter's and the toy envs' episode weights (corners only
+    here), and the default config keeps the paper's Dirichlet(1) draws unchanged."""
+    from amorctl.envs.factory import make_env
+    from amorctl.envs.toy import ToyTradeoffEnv
+
+    if "AmorctlReach1D-v0" not in gym.registry:
+        gym.register("AmorctlReach1D-v0", entry_point=Reach1D, max_episode_steps=5)
+    for kind in ("gym", "toy", "toy-smooth"):
+        config = override(
+            TrainConfig(),
+            env__kind=kind,
+            env__gym_id="AmorctlReach1D-v0" if kind == "gym" else "",
+            env__num_envs=16,
+            weights__corner_fraction=1.0,
+        )
+        env = make_env(config)
+        try:
+            env.reset(seed=3)
+            w = env.weights
+            assert np.isin(w, (0.0, 1.0)).all() and np.allclose(w.sum(1), 1), kind  # corners only
+            assert len({tuple(row) for row in w.tolist()}) > 1, kind  # not one corner for all
+        finally:
+            getattr(env, "close", lambda: None)()
+    plain = make_env(override(TrainConfig(), env__kind="toy", env__num_envs=16))
+    plain.reset(seed=3)
+    reference = ToyTradeoffEnv(16, max_steps=plain.max_steps)
+    reference.reset(seed=3)
+    np.testing.assert_array_equal(plain.weights, reference.weights)
+    assert not np.isin(plain.weights, (0.0, 1.0)).all()
+
+
+def test_adapter_refuses_a_sampler_for_another_number_of_objectives() -> None:
+    from amorctl.core.weight_sampling import WeightSampler
+
+    with pytest.raises(AmorError, match="a weight sampler for 3 objectives, the env has 2"):
+        MOGymVectorEnv(make, num_envs=2, weight_sampler=WeightSampler(3))

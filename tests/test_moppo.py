@@ -3,6 +3,8 @@ policy's behaviour depends on w, and a state_dict round trip continues exactly."
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -257,13 +259,58 @@ def test_tracking_run_with_every_lever_resumes_bit_exactly(tmp_path) -> None:
         np.testing.assert_array_equal(value, end_b.trainer.arrays[key], err_msg=key)
 
 
-def test_levers_are_refused_where_they_are_not_implemented() -> None:
-    from amorctl.core.errors import AmorError
+def test_toy_run_with_adaptive_weights_resumes_bit_exactly(tmp_path: Path) -> None:
+    """The toy env draws w through the [weights] sampler and checkpoints its adaptive state."""
+    from amorctl.train.checkpoint import list_checkpoints, load_checkpoint
+    from amorctl.train.loop import train_run
 
-    with pytest.raises(AmorError, match=r"\[weights\] options .* need run.backend = 'torch-cpu' and env"):
-        tiny_config(weights__corner_fraction=0.1)  # the toy env draws its own w
-    with pytest.raises(AmorError, match=r"\[ppo\] return_norm = 'value' needs run.backend = 'torch-cpu'"):
-        tiny_config(run__backend="jax-mjx", ppo__return_norm="value")
+    config = tiny_config(
+        run__iterations=4,
+        run__checkpoint_every=10,
+        run__threads=1,
+        env__num_envs=8,
+        ppo__num_steps=8,
+        weights__corner_fraction=0.2,
+        weights__adaptive_fraction=0.5,
+    )
+    train_run(config, tmp_path / "full")
+    assert train_run(config, tmp_path / "part", stop_after=2).interrupted
+    middle = load_checkpoint(list_checkpoints(tmp_path / "part" / "checkpoints")[-1][1])
+    assert middle.env is not None and sum(middle.env.meta["weight_sampler"]["count"]) > 0
+    train_run(config, tmp_path / "part", resume=True)
+    end_a = load_checkpoint(list_checkpoints(tmp_path / "full" / "checkpoints")[-1][1])
+    end_b = load_checkpoint(list_checkpoints(tmp_path / "part" / "checkpoints")[-1][1])
+    assert end_a.env.meta["weight_sampler"] == end_b.env.meta["weight_sampler"]
+    np.testing.assert_array_equal(end_a.env.arrays["w"], end_b.env.arrays["w"])
+    for key, value in end_a.trainer.arrays.items():
+        np.testing.assert_array_equal(value, end_b.trainer.arrays[key], err_msg=key)
+
+
+def test_levers_are_refused_where_they_are_not_implemented(tmp_path: Path) -> None:
+    from amorctl.core.config import check_backend_levers, levers_in_use
+    from amorctl.core.errors import AmorError
+    from amorctl.registry import get_registry
+    from amorctl.train.loop import train_run
+
+    jax_levers = get_registry().backend("jax-mjx").levers
+    torch_levers = get_registry().backend("torch-cpu").levers
+    config = tiny_config(run__backend="jax-mjx", ppo__return_norm="value")
+    with pytest.raises(
+        AmorError,
+        match=r"\[ppo\] return_norm = 'value' needs a backend that implements it; "
+        r"run.backend = 'jax-mjx' does not",
+    ):
+        check_backend_levers(config, jax_levers)
+    with pytest.raises(AmorError, match=r"return_norm = 'value' needs a backend"):  # nothing written
+        train_run(config, tmp_path / "never")
+    assert not (tmp_path / "never").exists()
+    check_backend_levers(config, torch_levers)  # torch-cpu declares every lever
+    # the toy and gym envs draw w themselves: only the tracking env's draws need the backend
+    assert levers_in_use(tiny_config(weights__corner_fraction=0.1)) == {}
+    tracking = tiny_config(env__kind="tracking", weights__corner_fraction=0.1, weights__adaptive_fraction=0.2)
+    assert set(levers_in_use(tracking)) == {"weight_sampling", "adaptive_weights"}
+    with pytest.raises(AmorError, match=r"adaptive_fraction needs an env whose state is checkpointed"):
+        tiny_config(env__kind="gym", env__gym_id="mo-hopper-v5", weights__adaptive_fraction=0.2)
     with pytest.raises(AmorError, match="exceed 1"):
         tiny_config(env__kind="tracking", weights__corner_fraction=0.6, weights__axis_fraction=0.6)
 

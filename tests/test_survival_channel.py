@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.core.config import TrainConfig, override
+from amorctl.core.config import TrainConfig, check_backend_levers, override
 from amorctl.core.errors import AmorError
 from amorctl.envs.toy import ToyTradeoffEnv
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
@@ -22,6 +22,7 @@ from amorctl.plugins.backends.torch_cpu.survival_channel import (
     objective_values,
     split_rewards,
 )
+from amorctl.registry import get_registry
 
 torch.set_num_threads(1)
 
@@ -147,10 +148,13 @@ def test_the_main_critic_still_predicts_whole_objective_values() -> None:
 def test_survival_channel_is_refused_without_a_shared_bonus_or_off_torch_cpu() -> None:
     with pytest.raises(AmorError, match=r"survival_channel = true needs objectives that share a survival"):
         trainer_with({"survival_channel": True}, env_cls=ToyTradeoffEnv)
-    with pytest.raises(AmorError, match=r"\[ppo\] survival_channel = true needs run.backend = 'torch-cpu'"):
+    with pytest.raises(AmorError, match=r"\[ppo\] survival_channel = true needs objectives that share"):
         config(ppo__survival_channel=True)  # the toy env
-    with pytest.raises(AmorError, match=r"\[ppo\] survival_channel = true needs run.backend = 'torch-cpu'"):
-        config(env__kind="tracking", run__backend="jax-mjx", ppo__survival_channel=True)
+    with pytest.raises(AmorError, match=r"survival_channel = true needs a backend that implements it; run.b"):
+        check_backend_levers(
+            config(env__kind="tracking", run__backend="jax-mjx", ppo__survival_channel=True),
+            get_registry().backend("jax-mjx").levers,
+        )
     with pytest.raises(AmorError, match=r"\[ppo\] survival_weight = 2 needs survival_channel = true"):
         config(env__kind="tracking", ppo__survival_weight=2.0)
     with pytest.raises(AmorError, match=r"survival_weight"):

@@ -648,3 +648,12 @@ def test_live_page_beyond_loopback_without_a_token_is_one_error_line_before_any_
     monkeypatch.setenv("AMORCTL_TOKEN", "short")
     assert main(["tune", str(toy_run), "--live", "--host", "0.0.0.0"]) == 2
     assert "the token is 5 characters" in capsys.readouterr().err
+
+
+def test_the_live_page_refreshes_its_text_at_ten_hz_whatever_the_control_rate() -> None:
+    from amorctl.tune.live import text_refresh_steps
+
+    assert text_refresh_steps(1 / 50) == 5  # biped20, humanoid36
+    assert text_refresh_steps(1 / 30) == 3
+    assert text_refresh_steps(1 / 200) == 20
+    assert text_refresh_steps(1 / 5) == 1  # slower than 10 Hz: every step

@@ -29,11 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.analysis.eval_env import close_env, episode_limit, make_eval_env
+from amorctl.analysis.eval_env import episode_limit, make_eval_env
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.simplex_regions import BIN_EDGES, NUM_BINS, region_index, region_labels
+from amorctl.core.vecenv import close_env
 from amorctl.core.weights import sample_dirichlet
 from amorctl.envs.wrappers import FixedWeights
 

@@ -17,7 +17,7 @@ import numpy as np
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
-from amorctl.core.vecenv import VectorEnv
+from amorctl.core.vecenv import VectorEnv, close_env
 from amorctl.core.weights import sample_dirichlet, simplex_grid
 from amorctl.envs.factory import make_env
 from amorctl.motion.resolve import resolve_name
@@ -86,13 +86,6 @@ def make_eval_env(
         close_env(env)
         raise
     return env, resolved
-
-
-def close_env(env: Any) -> None:
-    """Close ``env`` if it can be closed (toy envs cannot)."""
-    close = getattr(env, "close", None)
-    if callable(close):
-        close()
 
 
 def sweep_weights(

@@ -12,12 +12,13 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.analysis.eval_env import Progress, check_objective, close_env, episode_seeds, make_eval_env
+from amorctl.analysis.eval_env import Progress, check_objective, episode_seeds, make_eval_env
 from amorctl.analysis.rollout import rollout
 from amorctl.analysis.smoothness import MotionSums, motion_sums
 from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS, fixed_shape_policy, floats
 from amorctl.core.config import TrainConfig
 from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import close_env
 
 
 @dataclass

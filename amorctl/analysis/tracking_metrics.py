@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.analysis.eval_env import Progress, close_env, make_eval_env
+from amorctl.analysis.eval_env import Progress, make_eval_env
 from amorctl.analysis.rollout import Rollout, WeightsSource, rollout
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
+from amorctl.core.vecenv import close_env
 from amorctl.core.weights import format_weights
 
 JOINT_GROUP_LABELS = {"upper": "up", "lower": "lo", "feet": "feet"}

@@ -292,8 +292,15 @@ def check_cmd(
         raise AmorError("give --weights or --schedule to compare with uniform weights")
     bundle, rand = _load(bundle_dir, randomize)
     source, label = _weights_source(bundle, weights, schedule)
-    report = run_check(Runtime(bundle, randomization=rand), source, label=label, episodes=episodes,
-                       seconds=seconds, motion=motion, seed=seed)  # fmt: skip
+    report = run_check(
+        Runtime(bundle, randomization=rand),
+        source,
+        label=label,
+        episodes=episodes,
+        seconds=seconds,
+        motion=motion,
+        seed=seed,
+    )
     if json_:
         print_json(report)
         return
@@ -304,8 +311,15 @@ def check_cmd(
     columns = ("weights", "episodes", "survival", "joint MAE (deg)", "action rate (rad²)", "mean s", "falls")
     table = Table(*columns, title=title)
     for c in report["conditions"]:
-        table.add_row(c["label"], str(c["episodes"]), f"{c['survival']:.0%}", f"{c['joint_mae_deg']:.2f}",
-                      f"{c['action_rate']:.4g}", f"{c['mean_seconds']:.2f}", str(c["falls"]))  # fmt: skip
+        table.add_row(
+            c["label"],
+            str(c["episodes"]),
+            f"{c['survival']:.0%}",
+            f"{c['joint_mae_deg']:.2f}",
+            f"{c['action_rate']:.4g}",
+            f"{c['mean_seconds']:.2f}",
+            str(c["falls"]),
+        )
     console.print(table)
 
 

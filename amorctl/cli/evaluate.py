@@ -11,7 +11,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from amorctl.analysis.eval_env import check_objective, close_env, make_eval_env
+from amorctl.analysis.eval_env import check_objective, make_eval_env
 from amorctl.analysis.rollout import WeightsSource, rollout
 from amorctl.analysis.sweep_ranks import weight_sweep_ranks
 from amorctl.analysis.sweeps import DEFAULT_SWEEP_LEVELS
@@ -22,6 +22,7 @@ from amorctl.cli.pareto import MotionOpt, rollout_progress
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule, load_schedule
+from amorctl.core.vecenv import close_env
 from amorctl.core.weights import parse_weights
 from amorctl.train import distributed
 from amorctl.train.rundir import RunDir
@@ -87,9 +88,14 @@ def _table(results: list[EvalResult], names: tuple[str, ...]) -> Table:
 
 
 def _video(
-    path: Path, policy: Any, config: Any, source: WeightsSource, motions: list[str] | None, seconds: float,
+    path: Path,
+    policy: Any,
+    config: Any,
+    source: WeightsSource,
+    motions: list[str] | None,
+    seconds: float,
     seed: int,
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """Roll out one env for one episode (at most ``seconds``) and render it with ghost and weights."""
     from amorctl.outputs.video import render_video
 
@@ -104,15 +110,24 @@ def _video(
         ro = rollout(policy, env, source, episodes=1, seed=seed, max_steps=steps, record_qpos=True)
         assert ro.qpos is not None and ro.frame_index is not None and ro.weights is not None
         info = render_video(
-            path, view.character.name, ro.qpos[:, 0], ref_qpos=view.reference_qpos(ro.frame_index[:, 0]),
-            weights=ro.weights[:, 0], objective_names=ro.objective_names, fps=1.0 / view.dt,
-        )  # fmt: skip
+            path,
+            view.character.name,
+            ro.qpos[:, 0],
+            ref_qpos=view.reference_qpos(ro.frame_index[:, 0]),
+            weights=ro.weights[:, 0],
+            objective_names=ro.objective_names,
+            fps=1.0 / view.dt,
+        )
     finally:
         close_env(env)
     return {
-        "path": str(info.path), "frames": info.frames, "width": info.width, "height": info.height,
-        "fps": info.fps, "gl_backend": info.gl_backend,
-    }  # fmt: skip
+        "path": str(info.path),
+        "frames": info.frames,
+        "width": info.width,
+        "height": info.height,
+        "fps": info.fps,
+        "gl_backend": info.gl_backend,
+    }
 
 
 def evaluate(
@@ -174,9 +189,19 @@ def evaluate(
 
         others = {"--schedule": schedule, "--sweep": sweep, "--video": video}
         evaluate_hlp(
-            run, hlp, weights, motion, compare, hlp_envs, hlp_seconds, disc_steps, seed, json_out, others,
+            run,
+            hlp,
+            weights,
+            motion,
+            compare,
+            hlp_envs,
+            hlp_seconds,
+            disc_steps,
+            seed,
+            json_out,
+            others,
             data,
-        )  # fmt: skip
+        )
         return
     opened = RunDir.open(run)
     config = opened.config_for_data(data)  # the run's dataset, moved or held-out clips
@@ -209,13 +234,18 @@ def evaluate(
         "episodes": episodes,
         "motions": list(motion or []),
         "settings": [
-            {"label": r.label, "weights": r.weights, "episodes": r.episodes, "metrics": r.metrics,
-             "per_motion": r.per_motion}
+            {
+                "label": r.label,
+                "weights": r.weights,
+                "episodes": r.episodes,
+                "metrics": r.metrics,
+                "per_motion": r.per_motion,
+            }
             for r in results
         ],
         "sweep": sweep_doc,
         "video": video_doc,
-    }  # fmt: skip
+    }
     if json_out:
         print_json(doc)
         return
@@ -223,35 +253,60 @@ def evaluate(
 
 
 def _evaluate_settings(
-    policy: Any, config: Any, settings: list[tuple[str, WeightsSource]], motions: list[str] | None,
-    episodes: int, seed: int, show: bool,
-) -> list[EvalResult]:  # fmt: skip
+    policy: Any,
+    config: Any,
+    settings: list[tuple[str, WeightsSource]],
+    motions: list[str] | None,
+    episodes: int,
+    seed: int,
+    show: bool,
+) -> list[EvalResult]:
     """One :class:`EvalResult` per ``(label, weight source)`` of ``settings``, in order, each with a
     progress bar when ``show``."""
     results: list[EvalResult] = []
     for label, source in settings:
         with rollout_progress(show, f"evaluate {label}") as on_step:
             result = evaluate_setting(
-                policy, config, source, label=label, motions=motions, episodes=episodes, seed=seed,
+                policy,
+                config,
+                source,
+                label=label,
+                motions=motions,
+                episodes=episodes,
+                seed=seed,
                 on_step=on_step,
-            )  # fmt: skip
+            )
         results.append(result)
     return results
 
 
 def _sweep(
-    policy: Any, config: Any, objective: str, levels: list[float], motions: list[str] | None, episodes: int,
-    seed: int, figure: Path, show: bool,
-) -> dict[str, Any] | None:  # fmt: skip
+    policy: Any,
+    config: Any,
+    objective: str,
+    levels: list[float],
+    motions: list[str] | None,
+    episodes: int,
+    seed: int,
+    figure: Path,
+    show: bool,
+) -> dict[str, Any] | None:
     """Run the weight sweep of ``objective`` (its episodes split over torchrun's ranks), draw its
     figure; the ``sweep`` part of the JSON (None on ranks other than 0)."""
     from amorctl.outputs.plots import sweep_figure
 
     with distributed.session() as world, rollout_progress(show, f"sweep {objective}") as on_step:
         ws = weight_sweep_ranks(
-            policy, config, objective, levels=levels, motions=motions, episodes=episodes, seed=seed,
-            on_step=on_step, world=world,
-        )  # fmt: skip
+            policy,
+            config,
+            objective,
+            levels=levels,
+            motions=motions,
+            episodes=episodes,
+            seed=seed,
+            on_step=on_step,
+            world=world,
+        )
     if ws is None:
         return None
     sweep_figure(ws, figure)

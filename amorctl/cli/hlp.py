@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Group
@@ -16,6 +16,9 @@ from amorctl.cli.live_view import TrainingView, fmt
 from amorctl.cli.output import console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.hlp.config import PRESETS, HlpConfig, load_hlp_config, load_hlp_preset, merge
+
+if TYPE_CHECKING:
+    from amorctl.cli.tune import TuneRequest
 
 app = typer.Typer(
     help="High-level policy (HLP): PPO picks the weights w_t of a frozen AMOR policy every control "
@@ -78,9 +81,14 @@ class _Display(TrainingView):
 
 
 def _config(
-    preset: str | None, config_file: Path | None, window: int | None, motions: list[str] | None,
-    iterations: int | None, seed: int | None, num_envs: int | None,
-) -> HlpConfig:  # fmt: skip
+    preset: str | None,
+    config_file: Path | None,
+    window: int | None,
+    motions: list[str] | None,
+    iterations: int | None,
+    seed: int | None,
+    num_envs: int | None,
+) -> HlpConfig:
     base = load_hlp_preset(preset or "v30")
     if config_file is not None:
         base = load_hlp_config(config_file, base)
@@ -147,10 +155,14 @@ def train(
     display = _Display(out, live=console.is_terminal and not json_out)
     try:
         result = train_hlp(
-            run, out, config, resume=resume, data=data,
+            run,
+            out,
+            config,
+            resume=resume,
+            data=data,
             on_start=None if json_out else display.on_start,
             on_iteration=None if json_out else display.on_iteration,
-        )  # fmt: skip
+        )
     finally:
         display.stop()
     summary = {
@@ -211,15 +223,23 @@ def trace(
         write_trace_mcap(traces, out)
     summary = [
         {
-            "hlp": str(h.dir.path), "steps": len(t.weights), "seconds": float(t.times[-1]),
-            "joint_mae_deg": t.joint_mae_deg(), "falls": int(t.fell.sum()),
-            "segments": [{"motion": name, "start_s": a * t.dt, "end_s": b * t.dt,
-                          "mean_w": dict(zip(t.objective_names, t.weights[a:b].mean(0).tolist(),
-                                             strict=True))}
-                         for a, b, name in t.segments],
+            "hlp": str(h.dir.path),
+            "steps": len(t.weights),
+            "seconds": float(t.times[-1]),
+            "joint_mae_deg": t.joint_mae_deg(),
+            "falls": int(t.fell.sum()),
+            "segments": [
+                {
+                    "motion": name,
+                    "start_s": a * t.dt,
+                    "end_s": b * t.dt,
+                    "mean_w": dict(zip(t.objective_names, t.weights[a:b].mean(0).tolist(), strict=True)),
+                }
+                for a, b, name in t.segments
+            ],
         }
         for h, t in zip(hlps, traces, strict=True)
-    ]  # fmt: skip
+    ]
     if json_out:
         print_json(
             {"traces": summary, "plot": str(plot) if plot else None, "mcap": str(out) if out else None}
@@ -275,10 +295,13 @@ def print_table2(table: Any) -> None:
         t.add_column(col, justify="left" if col == "weights" else "right")
     for r in table.rows:
         t.add_row(
-            r["label"], f"{r['joint_mae_deg']:.2f} ± {r['joint_mae_ci95']:.2f}",
-            f"{r['logit']:.2f} ± {r['logit_ci95']:.2f}", str(r["episodes"]), str(r["falls"]),
+            r["label"],
+            f"{r['joint_mae_deg']:.2f} ± {r['joint_mae_ci95']:.2f}",
+            f"{r['logit']:.2f} ± {r['logit_ci95']:.2f}",
+            str(r["episodes"]),
+            str(r["falls"]),
             str(r["windows_heldout"]),
-        )  # fmt: skip
+        )
     console.print(t)
 
 
@@ -306,17 +329,11 @@ def table2(
     return data
 
 
-def tune_with_hlp(
-    run: Path, hlp_dir: Path, motion: str | None, scale: str | None, seconds: float | None,
-    weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int,
-    live: bool, host: str, port: int, save_to: Path, live_outputs: bool, token: str | None = None,
-    data: Path | None = None,
-) -> tuple[Any, str, dict[str, Any]] | None:  # fmt: skip
+def tune_with_hlp(req: TuneRequest) -> tuple[Any, str, dict[str, Any]] | None:
     """``amorctl tune RUN --hlp HLPDIR``: the HLP picks w_t, ``--scale`` edits it (docs/hlp.md).
 
     Serves the live page (returns None) or returns (the :class:`TuneRollout`, the character's
     name, the ``hlp`` part of the JSON report); ``amorctl tune`` writes and prints the rest.
-    ``live_outputs``: --out/--plot/--video were given (not allowed with --live).
     """
     from amorctl.cli.output import err_console
     from amorctl.hlp.edit import parse_scales
@@ -324,39 +341,43 @@ def tune_with_hlp(
     from amorctl.hlp.tune import check_hlp_for, run_hlp_tune
     from amorctl.tune.session import PinnedMotion
 
-    if weights is not None or schedule is not None:
+    if req.weights is not None or req.schedule is not None:
         raise AmorError(
             "--hlp chooses the weights every step; drop --weights / --schedule (edit with --scale)"
         )
-    if live and live_outputs:
+    if req.live and any(p is not None for p in req.outputs):
         raise AmorError("--live takes no --out, --plot or --video (save keyframes on the page)")
-    if live and not 0 < port < 65536:
-        raise AmorError(f"--port must be in 1..65535, got {port}")
-    hlp = load_hlp(hlp_dir)
-    if data is not None:
+    if req.live and not 0 < req.port < 65536:
+        raise AmorError(f"--port must be in 1..65535, got {req.port}")
+    assert req.hlp is not None
+    hlp = load_hlp(req.hlp)
+    if req.data is not None:
         from amorctl.hlp.run import OWN_DATA
         from amorctl.train.rundir import RunDir
 
-        RunDir.open(run).relocate_dataset(data, required=OWN_DATA)
-    tenv = PinnedMotion(run, motion, seed=seed, dataset=data)
+        RunDir.open(req.run).relocate_dataset(req.data, required=OWN_DATA)
+    tenv = PinnedMotion(req.run, req.motion, seed=req.seed, dataset=req.data)
     try:
         check_hlp_for(tenv, hlp)
-        scales = parse_scales(scale, tenv.names)
-        if live:
+        scales = parse_scales(req.scale, tenv.names)
+        if req.live:
             from amorctl.hlp.live import HlpLiveSession, serve_hlp_live
 
-            session = HlpLiveSession(tenv, hlp, scales, save_to=save_to)
+            session = HlpLiveSession(tenv, hlp, scales, save_to=req.save_to)
             serve_hlp_live(
-                session, host=host, port=port, token=token,
+                session,
+                host=req.host,
+                port=req.port,
+                token=req.token,
                 announce=lambda url: err_console.print(f"live page: {url}"),
-            )  # fmt: skip
+            )
             return None
-        rollout, raw = run_hlp_tune(tenv, hlp, scales, seconds, stop_on_fall=stop_on_fall)
+        rollout, raw = run_hlp_tune(tenv, hlp, scales, req.seconds, stop_on_fall=req.stop_on_fall)
     finally:
         tenv.close()
     names = list(rollout.objective_names)
     extra = {
-        "dir": str(hlp_dir),
+        "dir": str(req.hlp),
         "scales": dict(zip(names, scales.tolist(), strict=True)),
         "mean_hlp_weights": dict(zip(names, raw.mean(0).tolist(), strict=True)),
         "mean_weights": dict(zip(names, rollout.weights.mean(0).tolist(), strict=True)),
@@ -376,10 +397,19 @@ def print_hlp_weights(extra: dict[str, Any]) -> None:
 
 
 def evaluate_hlp(
-    run: Path, hlp_dirs: list[Path], weights: str | None, motions: list[str] | None, compare: bool,
-    envs: int, seconds: float, disc_steps: int, seed: int, json_out: bool, other_options: dict[str, Any],
+    run: Path,
+    hlp_dirs: list[Path],
+    weights: str | None,
+    motions: list[str] | None,
+    compare: bool,
+    envs: int,
+    seconds: float,
+    disc_steps: int,
+    seed: int,
+    json_out: bool,
+    other_options: dict[str, Any],
     data: Path | None = None,
-) -> None:  # fmt: skip
+) -> None:
     """``amorctl evaluate RUN --hlp HLPDIR --compare``: Table 2 (docs/hlp.md)."""
     from amorctl.hlp.eval_discriminator import TableOptions
 

@@ -40,9 +40,13 @@ def rollout_progress(enabled: bool, what: str) -> Iterator[Any]:
         yield None
         return
     with Progress(
-        TextColumn(f"{what}"), BarColumn(), TextColumn("{task.completed}/{task.total} steps"),
-        TimeElapsedColumn(), console=err_console, transient=True,
-    ) as bar:  # fmt: skip
+        TextColumn(f"{what}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} steps"),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as bar:
         task = bar.add_task(what, total=None)
 
         def on_step(done: int, cap: int) -> None:
@@ -120,9 +124,18 @@ def pareto(
         )
     with distributed.session() as world, rollout_progress(show, "rollout") as on_step:
         sweep = pareto_sweep_ranks(  # the weight rows split over torchrun's ranks (docs/distributed.md)
-            policy, config, weights, motions=motion, episodes=episodes, reference_point=reference,
-            hv_method=hv_method, seed=seed, sampling=sampling, on_step=on_step, world=world,  # type: ignore[arg-type]
-        )  # fmt: skip
+            policy,
+            config,
+            weights,
+            motions=motion,
+            episodes=episodes,
+            reference_point=reference,
+            hv_method=hv_method,
+            seed=seed,
+            sampling=sampling,
+            on_step=on_step,
+            world=world,  # type: ignore[arg-type]
+        )
     if sweep is None:  # not rank 0: rank 0 writes the files
         return
 

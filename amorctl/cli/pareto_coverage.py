@@ -72,10 +72,15 @@ def _print(doc: dict[str, Any], files: dict[str, str]) -> None:
         if not r["feasible"]:
             continue
         table.add_row(
-            r["region"], str(r["samples"]), _fmt(r["predicted"], ".4g"), _fmt(r["achieved"], ".4g"),
-            _fmt(r["gap"], "+.3g"), _fmt(r["relative_gap"], "+.1%"), _fmt(r["survival"], ".0%"),
+            r["region"],
+            str(r["samples"]),
+            _fmt(r["predicted"], ".4g"),
+            _fmt(r["achieved"], ".4g"),
+            _fmt(r["gap"], "+.3g"),
+            _fmt(r["relative_gap"], "+.1%"),
+            _fmt(r["survival"], ".0%"),
             "–" if r["training_episodes"] is None else f"{r['training_episodes']:,}",
-        )  # fmt: skip
+        )
     console.print(table)
     o = doc["overall"]
     logged = "" if doc["training_logged"] else " · the run did not log its training weights (no wcount/)"

@@ -33,8 +33,15 @@ def plugins(ctx: typer.Context, json_out: JsonFlag = False) -> None:
     registry = get_registry()
     rows = sorted(registry.provided, key=lambda p: (p.kind, p.name))
     problems = [*registry.problems, *plugin_commands().problems, *registry.deprecated]
+    levers = {p.name: sorted(registry.backend(p.name).levers) for p in rows if p.kind == "backend"}
     if json_out:
-        print_json({"plugins": [asdict(p) for p in rows], "problems": [asdict(p) for p in problems]})
+        print_json(
+            {
+                "plugins": [asdict(p) for p in rows],
+                "backend_levers": levers,
+                "problems": [asdict(p) for p in problems],
+            }
+        )
         return
     table = Table(title="amorctl plugins")
     for col in ("name", "kind", "package", "version"):
@@ -42,6 +49,9 @@ def plugins(ctx: typer.Context, json_out: JsonFlag = False) -> None:
     for p in rows:
         table.add_row(p.name, p.kind, p.package, p.version)
     console.print(table)
+    for name, names in levers.items():
+        listed = ", ".join(names) or "none (the paper's MOPPO only)"
+        console.print(f"backend {name!r} levers: {listed}", highlight=False)
     for prob in problems:
         detail = f": {prob.error}" if prob.error else ""
         console.print(

@@ -30,8 +30,14 @@ def _local_run(path: Path) -> dict[str, Any] | None:
     run = RunDir(path)
     if not run.config_path.is_file():
         return None
-    row: dict[str, Any] = {"run": str(path), "character": None, "env_kind": None, "iteration": None,
-                           "survival": None, "problem": None}  # fmt: skip
+    row: dict[str, Any] = {
+        "run": str(path),
+        "character": None,
+        "env_kind": None,
+        "iteration": None,
+        "survival": None,
+        "problem": None,
+    }
     try:
         cfg = run.config
         row["env_kind"] = cfg.env.kind
@@ -95,9 +101,14 @@ def list_runs(
         for e in found:
             c = e.card
             table.add_row(
-                e.name, str(c.get("character")), str(c.get("iteration")), f"{c.get('env_steps', 0):,}",
-                _minutes(c.get("wall_time_s")), c.get("command") or "–", (c.get("commit") or "–")[:12],
-            )  # fmt: skip
+                e.name,
+                str(c.get("character")),
+                str(c.get("iteration")),
+                f"{c.get('env_steps', 0):,}",
+                _minutes(c.get("wall_time_s")),
+                c.get("command") or "–",
+                (c.get("commit") or "–")[:12],
+            )
         console.print(table)
         for e in found:
             if e.card.get("description"):
@@ -150,9 +161,17 @@ def export_pretrained_cmd(
     from amorctl.train.pretrained_export import export_pretrained
 
     entry = export_pretrained(
-        run, name, out, iteration=iteration, command=command, description=description, notes=notes,
-        figures=figure or [], commit=commit, replace=replace,
-    )  # fmt: skip
+        run,
+        name,
+        out,
+        iteration=iteration,
+        command=command,
+        description=description,
+        notes=notes,
+        figures=figure or [],
+        commit=commit,
+        replace=replace,
+    )
     size = sum(p.stat().st_size for p in entry.path.rglob("*") if p.is_file())
     if json_out:
         print_json({"path": str(entry.path), "bytes": size, "card": entry.card})

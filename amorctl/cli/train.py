@@ -22,9 +22,11 @@ from rich.text import Text
 from amorctl.cli.live_view import TrainingView, fmt, fmt_time
 from amorctl.cli.output import console, print_json
 from amorctl.core.config import ENV_KINDS, PRESETS, TrainConfig, load_config, load_preset, merge
+from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError, AmorWarning
 from amorctl.core.vecenv import VectorEnv
 from amorctl.core.weights import parse_weight_pairs
+from amorctl.envs.factory import TOY_CONTROL_HZ
 from amorctl.train import distributed
 from amorctl.train.loop import train_run
 from amorctl.train.metrics import family_survival
@@ -40,8 +42,12 @@ class _Display(TrainingView):
     def __init__(self, out: Path, config: TrainConfig, live: bool) -> None:
         super().__init__(live)
         self.out, self.config = out, config
+        self.dt = 1.0 / TOY_CONTROL_HZ if config.env.kind != "gym" else None  # seconds per step
 
     def on_start(self, env: VectorEnv, start: int, total: int) -> None:
+        view = tracking_view(env)
+        if view is not None:  # the character's own control rate
+            self.dt = float(view.dt)
         names = env.reward_space.names
         c = self.config
         where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
@@ -57,7 +63,7 @@ class _Display(TrainingView):
     def render(self, m: dict[str, float], total: int, elapsed: float) -> Group:
         it = int(m["iteration"])
         left = self.seconds_left(it, total, elapsed)
-        ep_s = m["episode/length"] / (50.0 if self.config.env.kind != "gym" else 1.0)
+        seconds = f" ({fmt(m['episode/length'] * self.dt, '.2f')} s)" if self.dt else ""
         head = Text(
             f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   "
             f"{m['env_steps_per_s']:,.0f} steps/s   "
@@ -66,8 +72,8 @@ class _Display(TrainingView):
             f"entropy {fmt(m['loss/entropy'])})   KL {fmt(m['kl'])}   "
             f"clip {fmt(m['clip_fraction'], '.2f')}   "
             f"lr {fmt(m['learning_rate'])}   action std {fmt(m['action_std'])}\n"
-            f"episodes {int(m['episodes'])}   length {fmt(m['episode/length'], '.1f')} steps "
-            f"({fmt(ep_s, '.2f')} s)   survival {fmt(100 * m['episode/survival'], '.0f')}%   "
+            f"episodes {int(m['episodes'])}   length {fmt(m['episode/length'], '.1f')} steps{seconds}   "
+            f"survival {fmt(100 * m['episode/survival'], '.0f')}%   "
             f"return·w {fmt(m['return/scalarized'])}"
         )
         if families := family_survival(m):  # one number is pinned near 0 by the hardest clips
@@ -104,26 +110,47 @@ def _weight_mode(c: TrainConfig) -> str:
     return f"w ~ Dirichlet({w.alpha:g}) per episode{mix}"
 
 
-#: The command-line flag of each config field ``train`` takes as an option (named in errors).
-FLAGS: dict[tuple[str, str], str] = {
-    ("run", "backend"): "--backend",
-    ("run", "seed"): "--seed",
-    ("run", "iterations"): "--iterations",
-    ("env", "character"): "--character",
-    ("env", "num_envs"): "--num-envs",
-    ("env", "fixed_weights"): "--fixed-weights",
-    ("env", "dataset"): "--data",
-    ("env", "kind"): "--env",
-    ("env", "gym_id"): "--env",
-}
+def _command_line(ctx: typer.Context) -> tuple[dict[str, dict[str, Any]], dict[tuple[str, str], str]]:
+    """The config values this command line sets and the flag of every config field ``train``
+    takes. An option sets config field ``[SECTION] KEY`` when its parameter is named
+    ``SECTION__KEY``, so a new option is one parameter of :func:`train` (``--env`` is parsed apart).
+    Returns ({section: {key: value}} for the options given, {(section, key): flag})."""
+    overrides: dict[str, dict[str, Any]] = {}
+    flags: dict[tuple[str, str], str] = {("env", "kind"): "--env", ("env", "gym_id"): "--env"}
+    for param in ctx.command.params:
+        section, sep, key = (param.name or "").partition("__")
+        if not sep:
+            continue
+        flags[(section, key)] = param.opts[0]
+        value = ctx.params.get(param.name or "")
+        if value is not None:
+            overrides.setdefault(section, {})[key] = str(value) if isinstance(value, Path) else value
+    return overrides, flags
 
 
-def _apply_flags(base: TrainConfig, overrides: dict[str, dict[str, Any]]) -> TrainConfig:
+def _relaunch_args(ctx: typer.Context, out: Path) -> list[str]:
+    """This command line for the ranks torchrun starts: every option given, as parsed, without
+    ``--nproc`` and with ``--out`` fixed (the default name carries a time stamp)."""
+    args: list[str] = []
+    for param in ctx.command.params:
+        if param.param_type_name != "option" or param.name == "nproc":
+            continue
+        value = out if param.name == "out" else ctx.params.get(param.name or "")
+        if param.is_flag:
+            args += [param.opts[0]] if value else []
+        elif value is not None:
+            args += [param.opts[0], str(value)]
+    return args
+
+
+def _apply_flags(
+    base: TrainConfig, overrides: dict[str, dict[str, Any]], flags: dict[tuple[str, str], str]
+) -> TrainConfig:
     """Merge command-line values one flag at a time, so an error names the flag that set it."""
     by_flag: dict[str, dict[str, dict[str, Any]]] = {}
     for section, values in overrides.items():
         for key, value in values.items():
-            flag = FLAGS.get((section, key), "command line")
+            flag = flags.get((section, key), "command line")
             by_flag.setdefault(flag, {}).setdefault(section, {})[key] = value
     for flag, data in by_flag.items():
         base = merge(base, data, flag)
@@ -131,12 +158,15 @@ def _apply_flags(base: TrainConfig, overrides: dict[str, dict[str, Any]]) -> Tra
 
 
 def _resolve_config(
-    preset: str | None, config_file: Path | None, overrides: dict[str, dict[str, Any]]
+    preset: str | None,
+    config_file: Path | None,
+    overrides: dict[str, dict[str, Any]],
+    flags: dict[tuple[str, str], str],
 ) -> TrainConfig:
     base = load_preset(preset or "quick")
     if config_file is not None:
         base = load_config(config_file, base)
-    return _apply_flags(base, overrides)
+    return _apply_flags(base, overrides, flags)
 
 
 def _resume_config(
@@ -170,7 +200,8 @@ def _resume_config(
 
 
 def train(
-    character: Annotated[
+    ctx: typer.Context,
+    env__character: Annotated[
         str | None,
         typer.Option("--character", "-c", help="Character plugin to train (default: the preset's, biped20)."),
     ] = None,
@@ -181,8 +212,8 @@ def train(
     preset: Annotated[
         str | None, typer.Option("--preset", help=f"Preset: {' | '.join(PRESETS)} (default quick).")
     ] = None,
-    backend: Annotated[str | None, typer.Option("--backend", help="Training backend plugin.")] = None,
-    data: Annotated[
+    run__backend: Annotated[str | None, typer.Option("--backend", help="Training backend plugin.")] = None,
+    env__dataset: Annotated[
         Path | None,
         typer.Option(
             "--data", help="Motion dataset (default: the character's built-in clips, cached on first use)."
@@ -191,12 +222,14 @@ def train(
     out: Annotated[
         Path | None, typer.Option("--out", help="Run directory (default runs/<env>-<time>).")
     ] = None,
-    seed: Annotated[int | None, typer.Option("--seed", help="Seed of env, networks and noise.")] = None,
-    iterations: Annotated[int | None, typer.Option("--iterations", help="Total training iterations.")] = None,
+    run__seed: Annotated[int | None, typer.Option("--seed", help="Seed of env, networks and noise.")] = None,
+    run__iterations: Annotated[
+        int | None, typer.Option("--iterations", help="Total training iterations.")
+    ] = None,
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the run in --out from its newest checkpoint.")
     ] = False,
-    fixed_weights: Annotated[
+    env__fixed_weights: Annotated[
         str | None,
         typer.Option(
             "--fixed-weights", help="Plain PPO with one fixed w, e.g. up=1,smooth=0.5 (normalized; others 0)."
@@ -208,7 +241,7 @@ def train(
             "--env", help="tracking (default) | toy | toy-smooth | gym:<Gymnasium id> with a vector reward."
         ),
     ] = None,
-    num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
+    env__num_envs: Annotated[int | None, typer.Option("--num-envs", help="Parallel environments.")] = None,
     json_out: Annotated[
         bool, typer.Option("--json", help="Print a JSON summary at the end, no live view.")
     ] = False,
@@ -223,45 +256,30 @@ def train(
     ] = None,
 ) -> None:
     """Train one policy for every trade-off between the objectives (MOPPO, the AMOR paper's Section 4)."""
+    fixed_weights = env__fixed_weights
     if fixed_weights is not None and fixed_weights.strip().lower() != "uniform":
         parse_weight_pairs(fixed_weights, source="--fixed-weights")  # '' and 'up=1,,lo=1' refused here
-    env_section: dict[str, Any] = {
-        "character": character,
-        "num_envs": num_envs,
-        "fixed_weights": fixed_weights,
-        "dataset": str(data) if data is not None else None,
-    }
+    overrides, flags = _command_line(ctx)
     if env is not None:
         kind, _, gym_id = env.partition(":")
         if kind not in ENV_KINDS or (kind == "gym") != bool(gym_id):
             choices = ", ".join(k for k in ENV_KINDS if k != "gym")
             raise AmorError(f"--env {env!r}: expected {choices} or gym:<id>")
-        env_section.update(kind=kind, gym_id=gym_id or None)
-    overrides = {
-        "run": {"backend": backend, "seed": seed, "iterations": iterations},
-        "env": env_section,
-    }
-    overrides = {s: {k: v for k, v in vals.items() if v is not None} for s, vals in overrides.items()}
+        overrides.setdefault("env", {}).update(kind=kind, gym_id=gym_id or None)
+        overrides["env"] = {k: v for k, v in overrides["env"].items() if v is not None}
     if resume:
         if out is None:
             raise AmorError("--resume needs --out, the run directory to continue")
         config = _resume_config(out, preset, config_file, overrides)
     else:
-        config = _resolve_config(preset, config_file, overrides)
+        config = _resolve_config(preset, config_file, overrides, flags)
         if out is None:
             what = config.env.character if config.env.kind == "tracking" else config.env.kind
             out = Path("runs") / f"{what}-{time.strftime('%Y%m%d-%H%M%S')}"
 
     if nproc is not None and nproc > 1 and distributed.launched_world_size() == 1:
         distributed.local_config(config, distributed.World(0, nproc))  # num_envs divisible: checked here
-        flags = {
-            "--character": character, "--config": config_file, "--preset": preset, "--backend": backend,
-            "--data": data, "--out": out, "--seed": seed, "--iterations": iterations,
-            "--fixed-weights": fixed_weights, "--env": env, "--num-envs": num_envs,
-        }  # fmt: skip
-        args = [a for flag, v in flags.items() if v is not None for a in (flag, str(v))]
-        args += ["--resume"] * resume + ["--json"] * json_out
-        raise typer.Exit(_launch(nproc, args))
+        raise typer.Exit(_launch(nproc, _relaunch_args(ctx, out)))
     with distributed.session() as world:
         if world.distributed and not resume:
             out = world.broadcast(out)  # the default name has a time stamp: rank 0's
@@ -273,9 +291,16 @@ def train(
 def _launch(nproc: int, args: list[str]) -> int:
     """Run ``amorctl train <args>`` on ``nproc`` local ranks under torchrun; its exit status."""
     command = [
-        sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc-per-node={nproc}",
-        "-m", "amorctl", "train", *args,
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        f"--nproc-per-node={nproc}",
+        "-m",
+        "amorctl",
+        "train",
+        *args,
+    ]
     console.print(f"launching {nproc} processes: {' '.join(command[1:])}", highlight=False, soft_wrap=True)
     proc = subprocess.Popen(command)
     # Ctrl-C reaches torchrun too (same process group), SIGTERM is passed on: torchrun forwards

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -14,6 +15,37 @@ from amorctl.cli.options import JsonFlag
 from amorctl.cli.output import console, err_console, print_json
 from amorctl.core.errors import AmorError
 from amorctl.core.live_auth import check_bind
+
+
+@dataclass(frozen=True)
+class TuneRequest:
+    """What ``amorctl tune`` was asked for (its options, by name): what the HLP path and the
+    output writers read, passed as one object."""
+
+    run: Path
+    motion: str | None
+    weights: str | None
+    schedule: Path | None
+    seconds: float | None
+    out: Path | None
+    plot: Path | None
+    video: Path | None
+    stop_on_fall: bool
+    seed: int
+    data: Path | None
+    live: bool
+    host: str
+    port: int
+    token: str | None
+    save_to: Path
+    hlp: Path | None
+    scale: str | None
+    json: bool
+
+    @property
+    def outputs(self) -> list[Path | None]:
+        """--out, --plot, --video (None where not given)."""
+        return [self.out, self.plot, self.video]
 
 
 def _check_outputs(paths: list[Path | None]) -> None:
@@ -119,10 +151,11 @@ def tune(
     if live:  # before any work: beyond loopback only with a token (docs/tune.md, "Security")
         token = check_bind(host, token, f"--live --host {host}")
     if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
-        _tune_with_hlp(
-            run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, data, live, host, port,
-            save_to, out, plot, video, json_, token,
+        request = TuneRequest(
+            run, motion, weights, schedule, seconds, out, plot, video, stop_on_fall, seed, data, live,
+            host, port, token, save_to, hlp, scale, json_,
         )  # fmt: skip
+        _tune_with_hlp(request)
         if live:
             from amorctl.tune.live import end_live_process
 
@@ -142,9 +175,12 @@ def tune(
 
             session = LiveSession(tenv, w0, save_to=save_to)
             serve_live(
-                session, host=host, port=port, token=token,
+                session,
+                host=host,
+                port=port,
+                token=token,
                 announce=lambda url: err_console.print(f"live page: {url}"),
-            )  # fmt: skip
+            )
             tenv.close()
             end_live_process()
         sched = None
@@ -163,34 +199,25 @@ def tune(
     _print_table(result)
 
 
-def _tune_with_hlp(
-    run: Path, hlp: Path, motion: str | None, scale: str | None, seconds: float | None,
-    weights: str | None, schedule: Path | None, stop_on_fall: bool, seed: int, data: Path | None,
-    live: bool, host: str, port: int, save_to: Path, out: Path | None, plot: Path | None,
-    video: Path | None, json_: bool, token: str | None = None,
-) -> None:  # fmt: skip
-    """``tune --hlp``: the HLP of ``hlp`` chooses w_t every step (``amorctl.hlp.tune``); the same
+def _tune_with_hlp(req: TuneRequest) -> None:
+    """``tune --hlp``: the HLP of ``req.hlp`` chooses w_t every step (``amorctl.hlp.tune``); the same
     outputs and report as with fixed weights, plus the weights it chose."""
     from amorctl.cli.hlp import print_hlp_weights, tune_with_hlp
 
-    given = [out, plot, video]
-    _check_outputs(given)
-    if video is not None and video.suffix.lower() != ".mp4":
-        raise AmorError(f"--video {video}: the file must end in .mp4")
-    ran = tune_with_hlp(
-        run, hlp, motion, scale, seconds, weights, schedule, stop_on_fall, seed, live, host, port,
-        save_to, any(p is not None for p in given), token, data,
-    )  # fmt: skip
+    _check_outputs(req.outputs)
+    if req.video is not None and req.video.suffix.lower() != ".mp4":
+        raise AmorError(f"--video {req.video}: the file must end in .mp4")
+    ran = tune_with_hlp(req)
     if ran is None:  # the live page was served
         return
     rollout, character, extra = ran
-    meta = {"run": str(run), "seed": str(seed), "hlp": str(hlp)}
-    _write_outputs(rollout, meta, out, plot, video, character)
+    meta = {"run": str(req.run), "seed": str(req.seed), "hlp": str(req.hlp)}
+    _write_outputs(rollout, meta, req.out, req.plot, req.video, character)
     result = {
-        **_result(run, rollout, np.zeros(0), {"out": out, "plot": plot, "video": video}),
+        **_result(req.run, rollout, np.zeros(0), {"out": req.out, "plot": req.plot, "video": req.video}),
         "hlp": extra,
     }
-    if json_:
+    if req.json:
         print_json(result)
         return
     _print_table(result)
@@ -198,9 +225,14 @@ def _tune_with_hlp(
 
 
 def _check_args(
-    live: bool, schedule: Path | None, weights: str | None, out: Path | None, plot: Path | None,
-    video: Path | None, port: int,
-) -> None:  # fmt: skip
+    live: bool,
+    schedule: Path | None,
+    weights: str | None,
+    out: Path | None,
+    plot: Path | None,
+    video: Path | None,
+    port: int,
+) -> None:
     """AmorError for a combination of options that cannot work, before any work is done."""
     if live:
         if schedule is not None or out is not None or plot is not None or video is not None:
@@ -217,9 +249,13 @@ def _check_args(
 
 
 def _write_outputs(
-    rollout: Any, meta: dict[str, str], out: Path | None, plot: Path | None, video: Path | None,
+    rollout: Any,
+    meta: dict[str, str],
+    out: Path | None,
+    plot: Path | None,
+    video: Path | None,
     character: str,
-) -> None:  # fmt: skip
+) -> None:
     """Write the MCAP log, the plot and the video (with the reference ghost) that were asked for:
     all of them or none (a failure removes the files written before it)."""
     from amorctl.outputs.mcap_log import write_rollout_mcap

@@ -188,7 +188,7 @@ class PPOConfig:
 
 @dataclass(frozen=True)
 class WeightsConfig:
-    """Where on the simplex training episodes draw w (docs/moppo.md, Levers); kind=tracking only."""
+    """Where on the simplex training episodes draw w (docs/moppo.md, Levers)."""
 
     alpha: float = _doc(
         1.0, "Dirichlet concentration of w (1 = uniform on the simplex, the paper)", gt=0, max=1000
@@ -367,35 +367,68 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
     return config
 
 
+#: Training levers (docs/moppo.md, "Levers") a backend may implement; it declares which in
+#: ``BackendSpec.levers``. The paper's MOPPO needs none of them.
+LEVERS: tuple[str, ...] = ("return_norm", "survival_channel", "weight_sampling", "adaptive_weights")
+#: Env kinds whose objectives share a survival bonus the trainer can split off.
+SURVIVAL_BONUS_KINDS: tuple[str, ...] = ("tracking", "gym")
+#: Env kinds whose state (and so an adaptive weight sampler's) is checkpointed.
+SNAPSHOT_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth")
+
+
 def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
-    """The training levers' rules: the weight-sampling shares fit in one, and only the torch-cpu
-    backend (and, for [weights], its tracking env) implements them."""
-    w, p = config.weights, config.ppo
+    """The training levers' rules that do not depend on the backend: the weight-sampling shares
+    fit in one, and each lever's env kinds (:func:`check_backend_levers` asks the backend)."""
+    w, p, kind = config.weights, config.ppo, config.env.kind
     shares = w.corner_fraction + w.edge_fraction + w.axis_fraction + w.adaptive_fraction
-    torch_cpu = config.run.backend == "torch-cpu"
     return [
         (shares <= 1 + 1e-9, f"[weights] corner + edge + axis + adaptive fractions = {shares:g} exceed 1"),
         (
-            w.plain or (torch_cpu and config.env.kind == "tracking"),
-            "[weights] options other than the defaults need run.backend = 'torch-cpu' and "
-            f"env.kind = 'tracking' (got {config.run.backend!r}, {config.env.kind!r})",
-        ),
-        (
-            p.return_norm == "off" or torch_cpu,
-            f"[ppo] return_norm = {p.return_norm!r} needs run.backend = 'torch-cpu' "
-            f"(got {config.run.backend!r})",
+            w.adaptive_fraction == 0 or kind in SNAPSHOT_KINDS,
+            f"[weights] adaptive_fraction needs an env whose state is checkpointed (env.kind in "
+            f"{', '.join(map(repr, SNAPSHOT_KINDS))}; got {kind!r})",
         ),
         (
             p.survival_weight == 1.0 or p.survival_channel,
             f"[ppo] survival_weight = {p.survival_weight:g} needs survival_channel = true",
         ),
         (
-            not p.survival_channel or (torch_cpu and config.env.kind in ("tracking", "gym")),
-            "[ppo] survival_channel = true needs run.backend = 'torch-cpu' and env.kind = 'tracking' "
-            "or 'gym' "
-            f"(got {config.run.backend!r}, {config.env.kind!r})",
+            not p.survival_channel or kind in SURVIVAL_BONUS_KINDS,
+            f"[ppo] survival_channel = true needs objectives that share a survival bonus (env.kind in "
+            f"{', '.join(map(repr, SURVIVAL_BONUS_KINDS))}; got {kind!r})",
         ),
     ]
+
+
+def levers_in_use(config: TrainConfig) -> dict[str, str]:
+    """The levers ``config`` turns on that its backend must implement: {lever: the setting asking
+    for it}. ``[weights]`` draws need the backend only for the tracking env (the backend makes it);
+    the toy and gym envs draw them themselves, and adaptive draws need the trainer's feedback."""
+    w, p = config.weights, config.ppo
+    used: dict[str, str] = {}
+    if p.return_norm != "off":
+        used["return_norm"] = f"[ppo] return_norm = {p.return_norm!r}"
+    if p.survival_channel:
+        used["survival_channel"] = "[ppo] survival_channel = true"
+    if not w.plain and config.env.kind == "tracking":
+        used["weight_sampling"] = "[weights] options other than the defaults"
+    if w.adaptive_fraction > 0:
+        used["adaptive_weights"] = f"[weights] adaptive_fraction = {w.adaptive_fraction:g}"
+    return used
+
+
+def check_backend_levers(config: TrainConfig, levers: frozenset[str], source: str = "config") -> None:
+    """Refuse a config whose levers its backend (``run.backend``, declaring ``levers``) lacks.
+
+    Raises:
+        AmorError: naming ``source``, the setting and the backend.
+    """
+    for lever, setting in levers_in_use(config).items():
+        if lever not in levers:
+            raise AmorError(
+                f"{source}: {setting} needs a backend that implements it; run.backend = "
+                f"{config.run.backend!r} does not (`amorctl plugins` lists each backend's levers)"
+            )
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

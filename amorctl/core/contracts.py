@@ -48,7 +48,11 @@ class Snapshot:
 # ---------------------------------------------------------------------------- training
 @runtime_checkable
 class Trainer(Protocol):
-    """One backend's training loop, stepped one iteration at a time."""
+    """One backend's training loop, stepped one iteration at a time.
+
+    Optional: ``world_size`` (the data-parallel processes it trains across; 1 when absent), read
+    through :func:`trainer_world_size`.
+    """
 
     iteration_count: int  # iterations completed so far
 
@@ -162,7 +166,10 @@ class ObjectiveSet(Protocol):
     """What ``ObjectiveSetSpec.make(character)`` returns for the tracking environment.
 
     ``names``/``descriptions`` index the m objectives; ``low``/``high`` [m] bound one step's
-    reward; calling it returns r [N, m] (weights are never applied here).
+    reward; calling it returns r [N, m] (weights are never applied here). Optional:
+    ``alive_bonus``, the bonus it adds to every objective on each step that does not terminate
+    (0 when absent), read through :func:`survival_bonus_of`; a tracking env publishes it as
+    ``reward_space.survival_bonus``.
     """
 
     names: tuple[str, ...]
@@ -278,3 +285,14 @@ def tracking_view(env: Any) -> TrackingView | None:
     """The :class:`TrackingView` of ``env`` (through wrappers), or None for envs without motions."""
     view = getattr(env, "tracking_view", None)
     return view() if callable(view) else None
+
+
+def trainer_world_size(trainer: Any) -> int:
+    """The processes ``trainer`` trains across (:class:`Trainer`'s optional ``world_size``; 1)."""
+    return int(getattr(trainer, "world_size", 1))
+
+
+def survival_bonus_of(objectives: Any) -> float:
+    """The survival bonus an :class:`ObjectiveSet` adds to every objective (its optional
+    ``alive_bonus``; 0.0 when it declares none)."""
+    return float(getattr(objectives, "alive_bonus", 0.0))

@@ -74,6 +74,14 @@ def _unyaw(v: Any, c: Any, s: Any, xp: Any) -> Any:
     return xp.stack([c * v[..., 0] + s * v[..., 1], c * v[..., 1] - s * v[..., 0], v[..., 2]], axis=-1)
 
 
+#: The world-frame state arrays :func:`frame_features` reads, in its argument order (also the
+#: per-frame state a motion library stores under these names).
+STATE_ARRAYS: tuple[str, ...] = (
+    "root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
+    "ee_pos", "ee_quat", "ee_lin_vel",
+)  # fmt: skip
+
+
 def frame_features(
     root_pos: Any,
     root_quat: Any,

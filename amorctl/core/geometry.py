@@ -148,12 +148,3 @@ def mat_to_euler_xyz(m: np.ndarray) -> np.ndarray:
     a = np.arctan2(-m[..., 1, 2], m[..., 2, 2])
     c = np.arctan2(-m[..., 0, 1], m[..., 0, 0])
     return np.stack([a, b, c], axis=-1)
-
-
-def euler_xyz_to_mat(e: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`mat_to_euler_xyz`. e: [..., 3] -> [..., 3, 3]."""
-    e = np.asarray(e, dtype=np.float64)
-    qa = quat_from_rotvec(e[..., :1] * np.array([1.0, 0.0, 0.0]))
-    qb = quat_from_rotvec(e[..., 1:2] * np.array([0.0, 1.0, 0.0]))
-    qc = quat_from_rotvec(e[..., 2:3] * np.array([0.0, 0.0, 1.0]))
-    return quat_to_mat(quat_mul(quat_mul(qa, qb), qc))

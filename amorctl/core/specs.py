@@ -26,11 +26,25 @@ from amorctl.core.model_source import (  # the model-path bits; re-exported here
 from amorctl.core.moved import moved_names
 
 __all__ = [
-    "JOINT_GROUPS", "KEYPOINTS", "ActuatorModel", "BackendSpec", "CharacterSpec", "ImportOptions",
-    "JointGroup", "JointSpec", "LazyCharacter", "ModelSource", "MotionFormatSpec", "ObjectiveSetSpec",
-    "PackageModel", "describe_model_source", "find_package_file", "package_model", "resolve_model_source",
+    "JOINT_GROUPS",
+    "KEYPOINTS",
+    "ActuatorModel",
+    "BackendSpec",
+    "CharacterSpec",
+    "ImportOptions",
+    "JointGroup",
+    "JointSpec",
+    "LazyCharacter",
+    "ModelSource",
+    "MotionFormatSpec",
+    "ObjectiveSetSpec",
+    "PackageModel",
+    "describe_model_source",
+    "find_package_file",
+    "package_model",
+    "resolve_model_source",
     "set_mjcf_reader",
-]  # fmt: skip
+]
 
 if TYPE_CHECKING:
     from amorctl.core.contracts import Backend, ObjectiveSet
@@ -212,11 +226,16 @@ class ObjectiveSetSpec:
 
 @dataclass(frozen=True)
 class BackendSpec:
-    """A backend plugin: ``make(**options)`` returns a :class:`~amorctl.core.contracts.Backend`."""
+    """A backend plugin: ``make(**options)`` returns a :class:`~amorctl.core.contracts.Backend`.
+
+    ``levers`` names the training levers it implements (:data:`amorctl.core.config.LEVERS`); a
+    config that turns on another is refused before training starts.
+    """
 
     name: str
     description: str
     make: Callable[..., Backend]
+    levers: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,13 @@ class VectorEnv(Protocol):
     from Dirichlet(1) at every episode start (or fixed, when the env was told to). ``weights``
     returns them as ``[N, m]``; read it *before* ``step`` to get the weights the step's rewards
     belong to, since an env that ends its episode in ``step`` starts a new one with new weights.
+
+    Optional, each read through one function here: ``close()`` for an env that holds threads or
+    files (:func:`close_env`); ``diverged_total``, the steps whose simulation blew up since the
+    last ``reset`` (:func:`diverged_total`); ``weight_sampler``, the
+    :class:`~amorctl.core.weight_sampling.WeightSampler` its episodes draw ``w`` from, which an
+    adaptive sampler needs fed back (:func:`weight_sampler_of`); a fused rollout
+    (:class:`FusedRolloutEnv`).
     """
 
     num_envs: int
@@ -75,3 +82,37 @@ class VectorEnv(Protocol):
                 equal to ``obs`` elsewhere) and any diagnostic counters.
         """
         ...
+
+
+def close_env(env: object) -> None:
+    """End ``env``: call its ``close()`` when it has one (optional in :class:`VectorEnv`)."""
+    close = getattr(env, "close", None)
+    if callable(close):
+        close()
+
+
+@runtime_checkable
+class FusedRolloutEnv(Protocol):
+    """An env that rolls out policy and physics in one compiled call (the jax-mjx MJX env): the
+    trainer asks it for that call instead of stepping it, and the runner does not wrap it."""
+
+    def fused_rollout(self, nets: Any, clip: float, num_steps: int, mesh: Any) -> Any:
+        """A compiled ``(params, norm, env_state, selection, key) -> (env_state, batch)`` of
+        ``num_steps`` steps of policy and env."""
+        ...
+
+
+def has_fused_rollout(env: object) -> bool:
+    """Whether ``env``'s own class is a :class:`FusedRolloutEnv`. A wrapper that forwards
+    attributes to the env inside it is not: its fused rollout would bypass the wrapper."""
+    return callable(getattr(type(env), "fused_rollout", None))
+
+
+def diverged_total(env: object) -> int:
+    """Env steps whose simulation blew up since the last reset (0 for an env without a simulator)."""
+    return int(getattr(env, "diverged_total", 0) or 0)
+
+
+def weight_sampler_of(env: object) -> Any:
+    """The env's weight sampler (optional in :class:`VectorEnv`), or None."""
+    return getattr(env, "weight_sampler", None)

@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import STATE_ARRAYS
 from amorctl.core.specs import ActuatorModel, CharacterSpec, JointSpec
 
 FORMAT = "amorctl-deploy/1"
@@ -41,16 +42,42 @@ OPSET = 17
 CONTEXT_PARTS = ("ref_frame", "latent", "future_frames")
 #: the keys of ``deploy.json`` and of the ONNX ``metadata_props`` (docs/deploy.md describes each).
 METADATA_KEYS = (
-    "format", "amorctl_version", "run", "iteration", "objectives", "objective_set", "inputs", "outputs",
-    "observation_layout", "action", "joint_names", "joint_ranges", "pd_gains", "torque_limits",
-    "actuator_model", "default_pose", "control_hz", "physics_hz", "character", "model_sha256",
-    "character_model", "termination", "context", "motions", "opset", "parity",
-)  # fmt: skip
+    "format",
+    "amorctl_version",
+    "run",
+    "iteration",
+    "objectives",
+    "objective_set",
+    "inputs",
+    "outputs",
+    "observation_layout",
+    "action",
+    "joint_names",
+    "joint_ranges",
+    "pd_gains",
+    "torque_limits",
+    "actuator_model",
+    "default_pose",
+    "control_hz",
+    "physics_hz",
+    "character",
+    "model_sha256",
+    "character_model",
+    "termination",
+    "context",
+    "motions",
+    "opset",
+    "parity",
+)
 #: arrays of ``motions.npz`` (world-frame arrays for reference-state init, the context, latents).
 MOTION_ARRAYS = (
-    "frames", "z", "root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
-    "ee_pos", "ee_quat", "ee_lin_vel", "clip_starts", "clip_lengths", "clip_names",
-)  # fmt: skip
+    "frames",
+    "z",
+    *STATE_ARRAYS,
+    "clip_starts",
+    "clip_lengths",
+    "clip_names",
+)
 
 
 # ---------------------------------------------------------------------------- element names

@@ -32,6 +32,7 @@ from amorctl import __version__
 from amorctl.core.contracts import Policy, Snapshot, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import CharacterSpec
+from amorctl.core.vecenv import close_env
 from amorctl.core.weights import sample_dirichlet
 from amorctl.deploy.bundle import (
     CONTEXT_PARTS,
@@ -92,38 +93,15 @@ def _env_facts(env: Any) -> EnvFacts:
 # ---------------------------------------------------------------------------- policy arrays
 
 
-def neutral_arrays(snap: Snapshot) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The exporter's array names from a policy's ``export_arrays()``.
-
-    Accepts the backend-neutral names (``normalizer/mean``, ``normalizer/scale``,
-    ``actor/<i>/weight``..., documented in :mod:`amorctl.plugins.backends.torch_cpu.policy`) and
-    the checkpoint-style names a backend may hand out instead (``normalizer.mean/var``,
-    ``actor.net.<k>.weight``..., with ``normalizer_eps`` and ``obs_clip`` in the meta; the jax-mjx
-    backend's), converting the latter exactly as the normalizer computes its scale.
-    """
+def policy_arrays(snap: Snapshot) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A policy's ``export_arrays()`` as (arrays, meta), checked for the backend-neutral names
+    (``normalizer/mean``, ``normalizer/scale``, ``actor/<i>/weight``..., documented in
+    :mod:`amorctl.plugins.backends.torch_cpu.policy`) that every backend hands out."""
     arrays, meta = dict(snap.arrays), dict(snap.meta)
-    if "normalizer/mean" in arrays:
-        return arrays, meta
-    if "normalizer.mean" not in arrays or "normalizer.var" not in arrays:
-        raise AmorError("the policy's export_arrays() has no normalizer (normalizer/mean or normalizer.mean)")
-    eps = float(meta.get("normalizer_eps", 1e-2))
-    out = {
-        "normalizer/mean": np.asarray(arrays["normalizer.mean"]).astype(np.float32),
-        "normalizer/scale": (np.sqrt(np.asarray(arrays["normalizer.var"], dtype=np.float64)) + eps).astype(
-            np.float32
-        ),
-    }
-    for net in ("actor", "critic"):
-        index = sorted(
-            int(k.split(".")[2]) for k in arrays if k.startswith(f"{net}.net.") and k.endswith(".weight")
-        )
-        for i, k in enumerate(index):
-            out[f"{net}/{i}/weight"] = np.asarray(arrays[f"{net}.net.{k}.weight"], dtype=np.float32)
-            out[f"{net}/{i}/bias"] = np.asarray(arrays[f"{net}.net.{k}.bias"], dtype=np.float32)
-        meta[f"{net}_layers"] = len(index)
-    meta.setdefault("activation", "elu")
-    meta.setdefault("obs_clip", 10.0)
-    return out, meta
+    missing = [k for k in ("normalizer/mean", "normalizer/scale", "actor/0/weight") if k not in arrays]
+    if missing:
+        raise AmorError(f"the policy's export_arrays() has no {', '.join(missing)} (backend-neutral names)")
+    return arrays, meta
 
 
 # ---------------------------------------------------------------------------- the torch module
@@ -211,14 +189,12 @@ def plan_inputs(
     if not groups["obs"]:
         del groups["obs"]
     order = list(groups)
-    offsets: dict[str, int] = {}
     located: dict[str, tuple[int, int, int]] = {}
     for name in order:
         col = 0
         for part, a, b in groups[name]:
             located[part] = (order.index(name), col, col + b - a)
             col += b - a
-        offsets[name] = col
     pieces = [located[name] for _, _, name in parts]
     return groups, pieces
 
@@ -386,10 +362,15 @@ def _export_checked(
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            module, example, str(onnx_path), dynamo=False, opset_version=OPSET,
-            input_names=input_names, output_names=out_names,
+            module,
+            example,
+            str(onnx_path),
+            dynamo=False,
+            opset_version=OPSET,
+            input_names=input_names,
+            output_names=out_names,
             dynamic_axes={n: {0: "batch"} for n in [*input_names, *out_names]},
-        )  # fmt: skip
+        )
     got = dict(zip(out_names, open_session(onnx_path).run(out_names, dict(feeds)), strict=True))
     delta = max(float(np.max(np.abs(got[n].astype(np.float64) - want[n]))) for n in out_names)
     if not np.isfinite(delta) or delta > tolerance:
@@ -425,7 +406,7 @@ def export_bundle(
         run.relocate_dataset(data, required="a bundle carries the clips the run trained on")
     ckpt = run.checkpoint(iteration)
     policy: Policy = run.policy_of(ckpt)
-    arrays, snap_meta = neutral_arrays(policy.export_arrays())
+    arrays, snap_meta = policy_arrays(policy.export_arrays())
     names = list(policy.objectives)
     m, obs_dim = len(names), int(policy.obs_dim)
 
@@ -433,9 +414,7 @@ def export_bundle(
     try:
         facts = _env_facts(env)
     finally:
-        close = getattr(env, "close", None)
-        if callable(close):
-            close()
+        close_env(env)
     layout, spec, fall_drop = facts.layout, facts.character, facts.fall_drop
     if not layout:
         layout = dict(policy.observation_layout)
@@ -456,12 +435,21 @@ def export_bundle(
         onnx_path = tmp / ONNX_FILE
         delta = _export_checked(module, onnx_path, list(groups), out_names, feeds, want, tolerance)
         meta = bundle_metadata(
-            run=run, iteration=int(ckpt.iteration), objectives=names, inputs=inputs, outputs=outputs,
-            layout=layout, action_mode=action_mode, out_names=out_names, ref=ref, spec=spec,
-            fall_drop=fall_drop, context_inputs=[n for n in groups if n in CONTEXT_PARTS],
+            run=run,
+            iteration=int(ckpt.iteration),
+            objectives=names,
+            inputs=inputs,
+            outputs=outputs,
+            layout=layout,
+            action_mode=action_mode,
+            out_names=out_names,
+            ref=ref,
+            spec=spec,
+            fall_drop=fall_drop,
+            context_inputs=[n for n in groups if n in CONTEXT_PARTS],
             future_offsets=facts.future_offsets,
             parity={"max_abs": delta, "samples": len(obs), "tolerance": tolerance},
-        )  # fmt: skip
+        )
         if spec is not None:
             meta["motions"] = write_motions(tmp, run, layout)
             meta["character_model"].update(copy_model(spec, tmp, meta["model_sha256"]))

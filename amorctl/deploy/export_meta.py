@@ -21,6 +21,7 @@ import numpy as np
 
 from amorctl import __version__
 from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import STATE_ARRAYS
 from amorctl.core.specs import CharacterSpec, describe_model_source
 from amorctl.deploy.bundle import FORMAT, MODEL_DIR, MOTIONS_FILE, OPSET, compiled_model_hash
 from amorctl.registry import get_registry
@@ -84,8 +85,7 @@ def motions_arrays(run: RunDir) -> dict[str, np.ndarray]:
         "frames": np.asarray(lib.frames, dtype=np.float32),
         "z": np.asarray(lib.z, dtype=np.float32),
     }
-    for key in ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
-                "ee_pos", "ee_quat", "ee_lin_vel"):  # fmt: skip
+    for key in STATE_ARRAYS:
         out[key] = np.asarray(getattr(lib, key), dtype=np.float64)
     out["clip_starts"] = lib.starts.astype(np.int64)
     out["clip_lengths"] = lib.lengths.astype(np.int64)

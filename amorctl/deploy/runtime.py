@@ -196,8 +196,10 @@ class Runtime:
         self.fall_drop = float(meta["termination"]["fall_height_drop"])
         self.layout = {k: (int(a), int(b)) for k, (a, b) in meta["observation_layout"].items()}
         self.obs_dim = max(b for _, b in self.layout.values())
-        self.groups = {name: [(p, int(a), int(b)) for p, (a, b) in spec["parts"].items()]
-                       for name, spec in meta["inputs"].items()}  # fmt: skip
+        self.groups = {
+            name: [(p, int(a), int(b)) for p, (a, b) in spec["parts"].items()]
+            for name, spec in meta["inputs"].items()
+        }
         self.output = meta["action"]["output"]
         self.future = [int(o) for o in meta["context"]["future_frame_offsets"]]
         self.randomization = randomization or Randomization()
@@ -428,15 +430,31 @@ class Runtime:
         r = None
         if self.reward_meter is not None:
             r = self.reward_meter(
-                self.sim.frame(), int(reached), self.sim.torque, target, self.target_prev,
-                self.target_prev2, (jv - self.joint_vel_prev) / self.dt, alive=not fell, diverged=div,
-            )  # fmt: skip
+                self.sim.frame(),
+                int(reached),
+                self.sim.torque,
+                target,
+                self.target_prev,
+                self.target_prev2,
+                (jv - self.joint_vel_prev) / self.dt,
+                alive=not fell,
+                diverged=div,
+            )
             ep.reward_sum += r
         self.joint_vel_prev = jv
         self.target_prev2, self.target_prev = self.target_prev, target
-        rec = TickRecord(t=ep.t, weights=np.asarray(w, dtype=np.float64).copy(), pd_target=target.copy(),
-                         joint_pos=jp, joint_vel=jv, ref_joint_pos=ref_jp.copy(),
-                         frame=int(reached), qpos=self.sim.qpos, held=hold, rewards=r)  # fmt: skip
+        rec = TickRecord(
+            t=ep.t,
+            weights=np.asarray(w, dtype=np.float64).copy(),
+            pd_target=target.copy(),
+            joint_pos=jp,
+            joint_vel=jv,
+            ref_joint_pos=ref_jp.copy(),
+            frame=int(reached),
+            qpos=self.sim.qpos,
+            held=hold,
+            rewards=r,
+        )
         if ep.record:
             ep.records.append(rec)
         if self.logger is not None:

@@ -42,6 +42,12 @@ TOPIC_TARGETS = "/targets"
 TOPIC_TRACKING = "/tracking"
 TOPIC_WATCHDOG = "/watchdog"
 
+
+def _object_schema(title: str, **types: str) -> dict[str, Any]:
+    """A JSON schema of an object with these properties and JSON types (``t="number"``...)."""
+    return {"title": title, "type": "object", "properties": {k: {"type": v} for k, v in types.items()}}
+
+
 _GEOM_TYPES = {
     int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
     int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
@@ -95,9 +101,13 @@ class McapLogger:
         self.writer = foxglove.open_mcap(tmp, allow_overwrite=True, context=ctx)
         self.writer.write_metadata(
             "amorctl.deploy.runtime",
-            {"objectives": ",".join(self.names), "dt": repr(self.rt.dt),
-             "bundle": str(self.rt.bundle.path), **self.metadata},
-        )  # fmt: skip
+            {
+                "objectives": ",".join(self.names),
+                "dt": repr(self.rt.dt),
+                "bundle": str(self.rt.bundle.path),
+                **self.metadata,
+            },
+        )
         self.tf = FrameTransformsChannel(TOPIC_TF, context=ctx)
         self.scene = SceneUpdateChannel(TOPIC_SCENE, context=ctx)
         self.joints_ch = foxglove.Channel(
@@ -117,20 +127,13 @@ class McapLogger:
             self.rewards_ch = foxglove.Channel(
                 TOPIC_REWARDS, schema=_named_schema("amorctl.Rewards", self.names), context=ctx
             )
-        self.track_ch = foxglove.Channel(
-            TOPIC_TRACKING,
-            schema={"title": "amorctl.Tracking", "type": "object",
-                    "properties": {"t": {"type": "number"}, "joint_error_deg": {"type": "number"},
-                                   "held": {"type": "boolean"}}},
-            context=ctx,
-        )  # fmt: skip
+        tracking = _object_schema("amorctl.Tracking", t="number", joint_error_deg="number", held="boolean")
+        self.track_ch = foxglove.Channel(TOPIC_TRACKING, schema=tracking, context=ctx)
         self.dog_ch = foxglove.Channel(
             TOPIC_WATCHDOG,
-            schema={"title": "amorctl.WatchdogEvent", "type": "object",
-                    "properties": {"t": {"type": "number"}, "kind": {"type": "string"},
-                                   "detail": {"type": "string"}}},
+            schema=_object_schema("amorctl.WatchdogEvent", t="number", kind="string", detail="string"),
             context=ctx,
-        )  # fmt: skip
+        )
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -166,15 +169,19 @@ class McapLogger:
                 p, r = pos[b], quat[b]
                 transforms.append(
                     FrameTransform(
-                        timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=prefix + body,
+                        timestamp=stamp,
+                        parent_frame_id=WORLD_FRAME,
+                        child_frame_id=prefix + body,
                         translation=Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
                         rotation=Quaternion(x=float(r[1]), y=float(r[2]), z=float(r[3]), w=float(r[0])),
                     )
-                )  # fmt: skip
+                )
         self.tf.log(FrameTransforms(transforms=transforms), log_time=lt)
         t = float(rec.t)
-        self.joints_ch.log({"name": self.joints, "position": rec.joint_pos.tolist(),
-                            "velocity": rec.joint_vel.tolist()}, log_time=lt)  # fmt: skip
+        self.joints_ch.log(
+            {"name": self.joints, "position": rec.joint_pos.tolist(), "velocity": rec.joint_vel.tolist()},
+            log_time=lt,
+        )
         self.ref_ch.log(
             {"name": self.joints, "position": rec.ref_joint_pos.tolist(), "velocity": []}, log_time=lt
         )

@@ -39,9 +39,16 @@ class RewardMeter:
         self.num_joints, self.num_ee = num_joints, num_ee
         mot = motions
         self.ref_frames = frame_features(
-            mot.root_pos, mot.root_quat, mot.root_lin_vel, mot.root_ang_vel, mot.joint_pos,
-            mot.joint_vel, mot.ee_pos, mot.ee_quat, mot.ee_lin_vel,
-        )  # fmt: skip
+            mot.root_pos,
+            mot.root_quat,
+            mot.root_lin_vel,
+            mot.root_ang_vel,
+            mot.joint_pos,
+            mot.joint_vel,
+            mot.ee_pos,
+            mot.ee_quat,
+            mot.ee_lin_vel,
+        )
 
     def __call__(
         self,

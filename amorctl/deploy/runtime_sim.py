@@ -212,7 +212,13 @@ class CharacterSim:
         d, q0, v0 = self.data, self.root_qpos, self.root_dof
         quat = d.qpos[q0 + 3 : q0 + 7][None]
         return frame_features(
-            d.qpos[q0 : q0 + 3][None], quat, d.qvel[v0 : v0 + 3][None],
-            quat_rotate(quat, d.qvel[v0 + 3 : v0 + 6][None]), d.qpos[self.joint_qpos][None],
-            d.qvel[self.joint_dof][None], self.ee_pos[None], self.ee_quat[None], self.ee_lin_vel[None],
-        )[0]  # fmt: skip
+            d.qpos[q0 : q0 + 3][None],
+            quat,
+            d.qvel[v0 : v0 + 3][None],
+            quat_rotate(quat, d.qvel[v0 + 3 : v0 + 6][None]),
+            d.qpos[self.joint_qpos][None],
+            d.qvel[self.joint_dof][None],
+            self.ee_pos[None],
+            self.ee_quat[None],
+            self.ee_lin_vel[None],
+        )[0]

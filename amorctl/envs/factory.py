@@ -21,25 +21,26 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
     """
     e, seed = config.env, config.run.seed
     env: Any
+    steps = max(1, round(e.episode_seconds * TOY_CONTROL_HZ))
     if e.kind == "toy":
         from amorctl.envs.toy import ToyTradeoffEnv
 
-        env = ToyTradeoffEnv(
-            e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed
-        )
+        env = ToyTradeoffEnv(e.num_envs, max_steps=steps, seed=seed, weight_sampler=weight_sampler(config, 2))
     elif e.kind == "toy-smooth":
         from amorctl.envs.toy import ToySmoothEnv
 
-        env = ToySmoothEnv(e.num_envs, max_steps=max(1, round(e.episode_seconds * TOY_CONTROL_HZ)), seed=seed)
+        env = ToySmoothEnv(e.num_envs, max_steps=steps, seed=seed, weight_sampler=weight_sampler(config, 2))
     elif e.kind == "gym":
         from amorctl.envs.mo_gym import make_gym_env
 
         env = make_gym_env(e.gym_id, e.num_envs, seed=seed)
+        if not config.weights.plain or config.weights.alpha != 1.0:  # m is known once the env is made
+            env.weight_sampler = weight_sampler(config, env.num_objectives)
     else:
         if backend is None:
             backend = get_registry().backend(config.run.backend).make()
         options: dict[str, Any] = {}
-        if not config.weights.plain:  # the [weights] levers (torch-cpu's tracking env; config checks it)
+        if not config.weights.plain:  # the [weights] levers (a backend that declares them; config checks it)
             m = len(get_registry().objective_set(e.objective_set).objectives)
             options["weight_sampler"] = weight_sampler(config, m)
         env = backend.make_env(

@@ -5,8 +5,9 @@ reward vector of shape ``[m]`` and which describes it by a ``reward_space`` Box 
 MO-Gymnasium env does) into an :class:`~amorctl.core.vecenv.VectorEnv`:
 
 - observations are flattened to float32 and the episode's weights ``w`` are appended;
-- each copy draws ``w ~ Dirichlet(1)`` at every episode start (from the adapter's own seeded
-  generator); ``weights`` reports them;
+- each copy draws ``w`` at every episode start from the adapter's own seeded generator,
+  ``Dirichlet(1)`` unless a :class:`~amorctl.core.weight_sampling.WeightSampler` says otherwise
+  (the ``[weights]`` levers); ``weights`` reports them;
 - actions (Box action spaces only: the actor is Gaussian) are clipped to the space's bounds;
 - ended episodes reset at once; ``info["final_obs"]`` holds their last observation so that
   truncated episodes (``TimeLimit``) can be bootstrapped.
@@ -26,6 +27,7 @@ import numpy as np
 from amorctl.core.env_random import Seed, env_random, is_per_env
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weight_sampling import WeightSampler
 
 #: MO-Gymnasium tasks whose reward vector is documented, by id without version: the objectives'
 #: names and the survival bonus added to every objective on every step the agent is alive (the
@@ -52,12 +54,14 @@ class MOGymVectorEnv:
         num_envs: int,
         seed: int = 0,
         reward_names: Sequence[str] | None = None,
+        weight_sampler: WeightSampler | None = None,
     ) -> None:
         """Args:
         make_env: builds one ``gymnasium.Env`` (called ``num_envs`` times).
         num_envs: N.
-        seed: seeds copy i with ``seed + i`` on the first reset, and the weight sampler.
+        seed: seeds copy i with ``seed + i`` on the first reset, and the weight draws.
         reward_names: names of the m objectives (default: the env's ``reward_names`` or r0..).
+        weight_sampler: how episodes draw ``w`` (default Dirichlet(1); docs/moppo.md, Levers).
         """
         import gymnasium as gym
 
@@ -90,6 +94,12 @@ class MOGymVectorEnv:
             high=np.broadcast_to(np.asarray(space.high, dtype=np.float64), (m,)).copy(),
             survival_bonus=bonus,
         )
+        if weight_sampler is not None and weight_sampler.m != m:
+            raise AmorError(
+                f"{first.spec.id if first.spec else first}: a weight sampler for "
+                f"{weight_sampler.m} objectives, the env has {m}"
+            )
+        self.weight_sampler = weight_sampler or WeightSampler(m)
         self.num_envs = num_envs
         self.num_objectives = m
         self.base_obs_dim = int(np.prod(first.observation_space.shape))
@@ -120,7 +130,7 @@ class MOGymVectorEnv:
         for i, env in enumerate(self.envs):
             obs, _ = env.reset(seed=seeds[i])
             self._obs[i] = np.asarray(obs, dtype=np.float32).reshape(-1)
-        self._w = self.rand.dirichlet(np.arange(self.num_envs), self.num_objectives)
+        self._w = self.weight_sampler.draw(self.rand, np.arange(self.num_envs))
         return self._full(self._obs, self._w), {}
 
     def step(
@@ -152,7 +162,7 @@ class MOGymVectorEnv:
         final_obs = self._full(final, self._w)
         ended = terminated | truncated
         if ended.any():
-            self._w[ended] = self.rand.dirichlet(np.flatnonzero(ended), self.num_objectives)
+            self._w[ended] = self.weight_sampler.draw(self.rand, np.flatnonzero(ended))
         return self._full(self._obs, self._w), rewards, terminated, truncated, {"final_obs": final_obs}
 
     def close(self) -> None:
@@ -161,7 +171,9 @@ class MOGymVectorEnv:
             env.close()
 
 
-def make_gym_env(env_id: str, num_envs: int, seed: int = 0) -> MOGymVectorEnv:
+def make_gym_env(
+    env_id: str, num_envs: int, seed: int = 0, weight_sampler: WeightSampler | None = None
+) -> MOGymVectorEnv:
     """The adapter over ``env_id``: made with ``mo_gymnasium.make`` when MO-Gymnasium is installed
     and knows the id, else ``gymnasium.make``.
 
@@ -185,4 +197,4 @@ def make_gym_env(env_id: str, num_envs: int, seed: int = 0) -> MOGymVectorEnv:
                 "MO-Gymnasium tasks need `pip install mo-gymnasium`)"
             )
         maker = lambda: gym.make(env_id)  # noqa: E731
-    return MOGymVectorEnv(maker, num_envs, seed=seed)
+    return MOGymVectorEnv(maker, num_envs, seed=seed, weight_sampler=weight_sampler)

@@ -117,9 +117,15 @@ def _sway(
 
 
 def _body_poses(
-    m: mujoco.MjModel, d: mujoco.MjData, root_qpos: int, joint_qpos: np.ndarray, body_ids: list[int],
-    rp: np.ndarray, rq: np.ndarray, q: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    m: mujoco.MjModel,
+    d: mujoco.MjData,
+    root_qpos: int,
+    joint_qpos: np.ndarray,
+    body_ids: list[int],
+    rp: np.ndarray,
+    rq: np.ndarray,
+    q: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """World positions [T, B, 3] and quaternions [T, B, 4] of ``body_ids`` at every frame, by
     forward kinematics of root positions ``rp`` [T, 3], root quaternions ``rq`` [T, 4] and joint
     angles ``q`` [T, J] (setup only, not a hot path)."""

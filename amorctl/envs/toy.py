@@ -24,7 +24,9 @@ import numpy as np
 
 from amorctl.core.contracts import Snapshot
 from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
+from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weight_sampling import WeightSampler
 from amorctl.core.weights import check_simplex_rows
 
 TOY_REWARD_SPACE = RewardSpace(
@@ -52,7 +54,12 @@ class _ToyEnv(ABC):
     action_limit = 3.0
     second = "s_prev"
 
-    def _init_common(self, num_envs: int, max_steps: int, hazard: float, seed: int) -> None:
+    def _init_common(
+        self, num_envs: int, max_steps: int, hazard: float, seed: int, weight_sampler: WeightSampler | None
+    ) -> None:
+        if weight_sampler is not None and weight_sampler.m != 2:
+            raise AmorError(f"toy env: a weight sampler for {weight_sampler.m} objectives, the toy has 2")
+        self.weight_sampler = weight_sampler or WeightSampler(2)
         self.num_envs = num_envs
         self.max_steps = max_steps
         self.hazard = hazard
@@ -77,7 +84,7 @@ class _ToyEnv(ABC):
     def _start(self, mask: np.ndarray) -> None:
         self._start_task(mask)
         self.t[mask] = 0
-        self._w[mask] = self.rand.dirichlet(np.flatnonzero(mask), 2)
+        self._w[mask] = self.weight_sampler.draw(self.rand, np.flatnonzero(mask))
 
     def reset(self, seed: Seed = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start every env anew, reseeding when ``seed`` is given: one int for the batch's
@@ -106,7 +113,10 @@ class _ToyEnv(ABC):
     def get_state(self) -> Snapshot:
         """Everything the next step depends on: generator state, s, the second number, t, w."""
         arrays = {"s": self.s, self.second: getattr(self, self.second), "t": self.t, "w": self._w}
-        return Snapshot({k: v.copy() for k, v in arrays.items()}, {"rng": self.rand.state()})
+        meta: dict[str, Any] = {"rng": self.rand.state()}
+        if self.weight_sampler.adaptive:
+            meta["weight_sampler"] = self.weight_sampler.state()
+        return Snapshot({k: v.copy() for k, v in arrays.items()}, meta)
 
     def set_state(self, state: Snapshot) -> None:
         """Restore :meth:`get_state`; AmorError if a row of weights ``w`` is off the simplex."""
@@ -116,6 +126,8 @@ class _ToyEnv(ABC):
         setattr(self, self.second, state.arrays[self.second].copy())
         self.t = state.arrays["t"].copy()
         self._w = state.arrays["w"].copy()
+        if self.weight_sampler.adaptive:
+            self.weight_sampler.load_state(state.meta["weight_sampler"])
 
     @abstractmethod
     def _start_task(self, mask: np.ndarray) -> None:
@@ -132,8 +144,15 @@ class ToyTradeoffEnv(_ToyEnv):
     reward_space = TOY_REWARD_SPACE
     second = "s_prev"
 
-    def __init__(self, num_envs: int, max_steps: int = 20, hazard: float = 0.01, seed: int = 0) -> None:
-        self._init_common(num_envs, max_steps, hazard, seed)
+    def __init__(
+        self,
+        num_envs: int,
+        max_steps: int = 20,
+        hazard: float = 0.01,
+        seed: int = 0,
+        weight_sampler: WeightSampler | None = None,
+    ) -> None:
+        self._init_common(num_envs, max_steps, hazard, seed, weight_sampler)
 
     def _start_task(self, mask: np.ndarray) -> None:
         self.s[mask] = self.rand.uniform(np.flatnonzero(mask), -0.5, 0.5)
@@ -189,10 +208,11 @@ class ToySmoothEnv(_ToyEnv):
         width: float = 0.5,
         hazard: float = 0.0,
         seed: int = 0,
+        weight_sampler: WeightSampler | None = None,
     ) -> None:
         self.jump = jump
         self.width = width
-        self._init_common(num_envs, max_steps, hazard, seed)
+        self._init_common(num_envs, max_steps, hazard, seed, weight_sampler)
 
     def _start_task(self, mask: np.ndarray) -> None:
         ids = np.flatnonzero(mask)

@@ -19,10 +19,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from amorctl.core.contracts import Snapshot
+from amorctl.core.contracts import Snapshot, survival_bonus_of
 from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.errors import AmorError
-from amorctl.core.frame_layout import TrackingInputs, frame_dim, frame_features, split_frame
+from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_dim, frame_features, split_frame
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
@@ -102,7 +102,7 @@ class TrackingEnv:
             descriptions=tuple(self.objectives.descriptions),
             low=np.asarray(self.objectives.low, dtype=np.float64),
             high=np.asarray(self.objectives.high, dtype=np.float64),
-            survival_bonus=float(getattr(self.objectives, "alive_bonus", 0.0)),
+            survival_bonus=survival_bonus_of(self.objectives),
         )
         self.fixed_weights = None if fixed_weights is None else _check_weights(fixed_weights, m)
         self.weight_sampler = weight_sampler or WeightSampler(m)
@@ -129,10 +129,7 @@ class TrackingEnv:
         # Rewards compare the simulator's frame features with features computed from the
         # library's world-frame arrays by the same function; the context shows m_t as the library
         # stores it (they agree when the library follows its documented layout).
-        self.ref_frames = frame_features(
-            lib.root_pos, lib.root_quat, lib.root_lin_vel, lib.root_ang_vel, lib.joint_pos,
-            lib.joint_vel, lib.ee_pos, lib.ee_quat, lib.ee_lin_vel,
-        )  # fmt: skip
+        self.ref_frames = frame_features(*(getattr(lib, k) for k in STATE_ARRAYS))
         self.frame_mismatch = float(np.max(np.abs(self.ref_frames - lib.frames))) if lib.num_frames else 0.0
         if self.frame_mismatch > 1e-3:
             warnings.warn(
@@ -387,9 +384,14 @@ class TrackingEnv:
         f = self.ref_idx[ids]
         lib = self.library
         self.sim.set_state(
-            ids, lib.root_pos[f], lib.root_quat[f], lib.root_lin_vel[f], lib.root_ang_vel[f],
-            lib.joint_pos[f], lib.joint_vel[f],
-        )  # fmt: skip
+            ids,
+            lib.root_pos[f],
+            lib.root_quat[f],
+            lib.root_lin_vel[f],
+            lib.root_ang_vel[f],
+            lib.joint_pos[f],
+            lib.joint_vel[f],
+        )
         self.ee_pos[ids] = lib.ee_pos[f]
         self.ee_quat[ids] = lib.ee_quat[f]
         self.ee_lin_vel[ids] = lib.ee_lin_vel[f]
@@ -406,10 +408,16 @@ class TrackingEnv:
         """[k, D] heading-frame features of the simulated state."""
         s = self.sim
         return frame_features(
-            s.root_pos()[ids], s.root_quat()[ids], s.root_lin_vel()[ids], s.root_ang_vel()[ids],
-            s.joint_pos()[ids], s.joint_vel()[ids], self.ee_pos[ids], self.ee_quat[ids],
+            s.root_pos()[ids],
+            s.root_quat()[ids],
+            s.root_lin_vel()[ids],
+            s.root_ang_vel()[ids],
+            s.joint_pos()[ids],
+            s.joint_vel()[ids],
+            self.ee_pos[ids],
+            self.ee_quat[ids],
             self.ee_lin_vel[ids],
-        )  # fmt: skip
+        )
 
     def _observe(self, sim_frames: np.ndarray | None = None, ids: np.ndarray | None = None) -> np.ndarray:
         """Observations [k, obs_dim] float32 of envs ``ids`` (all when None)."""

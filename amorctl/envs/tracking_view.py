@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -25,14 +25,17 @@ if TYPE_CHECKING:
     from amorctl.envs.tracking_env import TrackingEnv
 
 
-class TrackingEnvView:
-    """The read-only view of a :class:`~amorctl.envs.tracking_env.TrackingEnv` (plus ``select_clips``).
+class TrackingViewBase:
+    """What every backend's view reads alike from its env: the facts fixed for the env's life
+    (character, control period, clips, joints, observation layout) and the current weights. A
+    backend's view subclasses it and adds ``model`` and the simulated state.
 
     Args:
-        env: the env it reads; the view holds no state of its own.
+        env: a tracking env with ``character``, ``dt``, ``max_episode_steps``, ``num_envs``,
+            ``fall_drop``, ``future_frames``, ``library``, ``obs_layout`` and ``weights``.
     """
 
-    def __init__(self, env: TrackingEnv) -> None:
+    def __init__(self, env: Any) -> None:
         self._env = env
         self.character: CharacterSpec = env.character
         self.dt = float(env.dt)
@@ -46,14 +49,9 @@ class TrackingEnvView:
         self._layout = MappingProxyType({k: (s.start, s.stop) for k, s in env.obs_layout.items()})
 
     def __repr__(self) -> str:
-        return f"TrackingEnvView({self.character.name!r}, num_envs={self.num_envs})"
+        return f"{type(self).__name__}({self.character.name!r}, num_envs={self.num_envs})"
 
     # --- fixed for the env's life --------------------------------------------------------------
-    @property
-    def model(self) -> mujoco.MjModel:
-        """The compiled MuJoCo model of one character."""
-        return self._env.sim.model
-
     @property
     def clip_names(self) -> tuple[str, ...]:
         """The C clip names, in library order."""
@@ -84,6 +82,22 @@ class TrackingEnvView:
     def weights(self) -> np.ndarray:
         """[N, m] float32 weights of each env's current episode."""
         return self._env.weights
+
+
+class TrackingEnvView(TrackingViewBase):
+    """The read-only view of a :class:`~amorctl.envs.tracking_env.TrackingEnv` (plus ``select_clips``).
+
+    Args:
+        env: the env it reads; the view holds no state of its own.
+    """
+
+    def __init__(self, env: TrackingEnv) -> None:
+        super().__init__(env)
+
+    @property
+    def model(self) -> mujoco.MjModel:
+        """The compiled MuJoCo model of one character."""
+        return self._env.sim.model
 
     def clip_index(self) -> np.ndarray:
         """[N] int64, the clip each env tracks now."""

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from importlib import resources
@@ -19,11 +18,6 @@ from typing import Any, get_args, get_origin, get_type_hints
 
 from amorctl.core.config import read_toml, sections_to_toml
 from amorctl.core.errors import AmorError
-
-if sys.version_info >= (3, 11):
-    pass
-else:  # pragma: no cover
-    pass
 
 
 def _doc(default: Any, text: str) -> Any:

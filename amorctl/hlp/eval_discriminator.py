@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from amorctl.core.errors import AmorError
+from amorctl.core.vecenv import close_env
 from amorctl.hlp.config import DiscriminatorConfig, HlpConfig
 from amorctl.hlp.discriminator import DiscriminatorLearner
 from amorctl.hlp.run import HlpSetup, resolve_motions, run_dataset, setup
@@ -104,12 +105,19 @@ class Table2:
             "counts": self.counts,
             "caption": self.caption,
             "options": {
-                "num_envs": o.num_envs, "seconds": o.seconds, "window": o.window, "stride": o.stride,
-                "train_fraction": o.train_fraction, "steps": o.steps, "batch_size": o.batch_size,
-                "hidden": list(o.hidden), "learning_rate": o.learning_rate, "seed": o.seed,
+                "num_envs": o.num_envs,
+                "seconds": o.seconds,
+                "window": o.window,
+                "stride": o.stride,
+                "train_fraction": o.train_fraction,
+                "steps": o.steps,
+                "batch_size": o.batch_size,
+                "hidden": list(o.hidden),
+                "learning_rate": o.learning_rate,
+                "seed": o.seed,
                 "motions": list(o.motions),
             },
-        }  # fmt: skip
+        }
 
 
 def _ci95(x: np.ndarray) -> float:
@@ -162,9 +170,15 @@ def roll_condition(
     if sum(len(w) for w in wins) == 0:
         raise AmorError(f"--hlp-seconds {opts.seconds}: too short for one {spec.window}-frame window")
     return ConditionData(
-        label, weights_text, err / steps, np.concatenate(wins), np.concatenate(zs).astype(np.float32),
-        np.concatenate(owners), falls, w_sum / steps,
-    )  # fmt: skip
+        label,
+        weights_text,
+        err / steps,
+        np.concatenate(wins),
+        np.concatenate(zs).astype(np.float32),
+        np.concatenate(owners),
+        falls,
+        w_sum / steps,
+    )
 
 
 def hlp_table(
@@ -239,9 +253,13 @@ def _roll_conditions(
     cfg = HlpConfig()
     cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, motions=tuple(opts.motions)))
     s = setup(
-        run_path, cfg, num_envs=opts.num_envs, seed=opts.seed, episode_seconds=opts.seconds + 1.0,
+        run_path,
+        cfg,
+        num_envs=opts.num_envs,
+        seed=opts.seed,
+        episode_seconds=opts.seconds + 1.0,
         data=opts.data,
-    )  # fmt: skip
+    )
     try:
         if s.view is None:
             raise AmorError("Table 2 (--hlp) needs a motion-tracking run")
@@ -263,23 +281,32 @@ def _roll_conditions(
                 fn = lambda obs, w=w: np.tile(w, (len(obs), 1))  # noqa: E731
             data.append(roll_condition(s, label, text, fn, spec, proprio, latent, opts))
     finally:
-        close = getattr(s.env, "close", None)
-        if callable(close):
-            close()
+        close_env(s.env)
     return _Rolled(tuple(s.meta["objectives"]), data, DatasetWindows(library, spec, clips))
 
 
 def _train_discriminator(
-    dataset: DatasetWindows, ds_train: np.ndarray, neg_w: np.ndarray, neg_z: np.ndarray,
-    opts: TableOptions, rng: np.random.Generator,
-) -> DiscriminatorLearner:  # fmt: skip
+    dataset: DatasetWindows,
+    ds_train: np.ndarray,
+    neg_w: np.ndarray,
+    neg_z: np.ndarray,
+    opts: TableOptions,
+    rng: np.random.Generator,
+) -> DiscriminatorLearner:
     """Step 2: a fresh discriminator, trained on the dataset windows of rows ``ds_train`` against
     the policy windows ``neg_w`` [K, W] with their z ``neg_z`` [K, L] (and mismatched-z negatives)."""
     dcfg = DiscriminatorConfig()
     learner = DiscriminatorLearner(
-        dataset.spec.size, dataset.z.shape[1], opts.hidden, dcfg.z_hidden, dcfg.grad_penalty,
-        dcfg.logit_l2, dcfg.weight_decay, opts.learning_rate, opts.seed + 11,
-    )  # fmt: skip
+        dataset.spec.size,
+        dataset.z.shape[1],
+        opts.hidden,
+        dcfg.z_hidden,
+        dcfg.grad_penalty,
+        dcfg.logit_l2,
+        dcfg.weight_decay,
+        opts.learning_rate,
+        opts.seed + 11,
+    )
     b = opts.batch_size
     n_mis = b // 4
     for _ in range(opts.steps):

@@ -90,9 +90,16 @@ class DiscriminatorReward:
         latent_dim = latent.stop - latent.start
         self.history = WindowHistory(num_envs, spec)
         self.learner = DiscriminatorLearner(
-            spec.size, latent_dim, cfg.hidden, cfg.z_hidden, cfg.grad_penalty, cfg.logit_l2,
-            cfg.weight_decay, cfg.learning_rate, seed,
-        )  # fmt: skip
+            spec.size,
+            latent_dim,
+            cfg.hidden,
+            cfg.z_hidden,
+            cfg.grad_penalty,
+            cfg.logit_l2,
+            cfg.weight_decay,
+            cfg.learning_rate,
+            seed,
+        )
         self.replay = ReplayBuffer(cfg.replay_size, spec.size, latent_dim)
         self._windows: list[np.ndarray] = []
         self._z: list[np.ndarray] = []

@@ -25,11 +25,13 @@ from amorctl.core.contracts import Policy, tracking_view
 from amorctl.core.dir_lock import writing_into
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_path, atomic_write_text, file_sha256
+from amorctl.core.vecenv import close_env
 from amorctl.envs.wrappers import FixedWeights
 from amorctl.hlp.config import HlpConfig, load_hlp_config, to_toml
 from amorctl.hlp.rewards import DiscriminatorReward, ObjectiveReward, RewardSource
 from amorctl.hlp.trainer import HlpTrainer
 from amorctl.hlp.windows import DatasetWindows, WindowSpec, observation_slices
+from amorctl.train.callbacks import Callbacks
 from amorctl.train.checkpoint import (
     Checkpoint,
     checkpoint_paths,
@@ -153,9 +155,11 @@ def setup(
         "action_dim": int(env.action_dim),
         "objectives": list(env.reward_space.names),
         "obs_dim": int(env.obs_dim),
-        "observation_layout": {k: [int(v[0]), int(v[1])] if not isinstance(v, slice) else [v.start, v.stop]
-                               for k, v in layout.items()},
-    }  # fmt: skip
+        "observation_layout": {
+            k: [int(v[0]), int(v[1])] if not isinstance(v, slice) else [v.start, v.stop]
+            for k, v in layout.items()
+        },
+    }
     return HlpSetup(run, env, llp, ckpt, view, clips, meta)
 
 
@@ -359,18 +363,18 @@ def train_hlp(
             return path
 
         log = MetricsLog(hd.path, config.run.tensorboard, start if resume else None)
-        if on_start is not None:
-            on_start(s, start, total)
+        callbacks = Callbacks(on_start, on_iteration, None, stop_after, stop_when)
+        callbacks.start(s, start, total)
+        last_good = ckpt.path if ckpt is not None else None
         try:
-            iteration, last, interrupted, last_path = _iterate(
-                trainer, log, checkpoint, start, total, config.run.checkpoint_every,
-                ckpt.path if ckpt is not None else None, on_iteration, stop_after, stop_when,
-            )  # fmt: skip
+            span = range(start, total)
+            result = _iterate(
+                trainer, log, checkpoint, span, config.run.checkpoint_every, last_good, callbacks
+            )
+            iteration, last, interrupted, last_path = result
         finally:
             log.close()
-            close = getattr(s.env, "close", None)
-            if callable(close):
-                close()
+            close_env(s.env)
         after = policy_fingerprint(s.llp)
         if after != before:  # the LLP must stay frozen; this would be a bug, not a user error
             raise RuntimeError("the frozen low-level policy's parameters changed during HLP training")
@@ -416,20 +420,18 @@ def _iterate(
     trainer: HlpTrainer,
     log: MetricsLog,
     checkpoint: Callable[[int], Path],
-    start: int,
-    total: int,
+    iterations: range,
     checkpoint_every: int,
     last_path: Path | None,
-    on_iteration: Callable[[dict[str, float], int, float], None] | None,
-    stop_after: int | None,
-    stop_when: Callable[[dict[str, float]], bool] | None,
+    callbacks: Callbacks,
 ) -> tuple[int, dict[str, float], bool, Path | None]:
-    """HLP iterations from ``start`` up to ``total``, or until a signal, ``stop_after`` iterations
-    or ``stop_when``: each logged, a checkpoint every ``checkpoint_every``, at the end and at a stop.
+    """HLP iterations ``iterations`` (from its start up to its stop), or until a signal or a
+    callback's stop: each logged, a checkpoint every ``checkpoint_every``, at the end and at a stop.
 
     Returns:
         (last iteration, its metrics, whether it stopped early, the newest checkpoint).
     """
+    start, total = iterations.start, iterations.stop
     last: dict[str, float] = {}
     interrupted = False
     iteration = start
@@ -440,17 +442,12 @@ def _iterate(
             iteration = trainer.iteration_count
             last["wall_time_s"] = time.perf_counter() - began
             log.write(last)
-            if on_iteration is not None:
-                on_iteration(last, total, time.perf_counter() - began)
+            callbacks.iteration(last, total, time.perf_counter() - began)
             if not all(np.isfinite(v) for k, v in last.items() if k.startswith("loss/")):
                 raise AmorError(
                     f"HLP training diverged at iteration {iteration}; last good checkpoint {last_path}"
                 )
-            interrupted = (
-                stop.requested
-                or (stop_after is not None and iteration - start >= stop_after)
-                or (stop_when is not None and stop_when(last))
-            )
+            interrupted = stop.requested or callbacks.wants_stop(last, iteration - start)
             if interrupted or iteration % checkpoint_every == 0 or iteration == total:
                 last_path = checkpoint(iteration)
             if interrupted:

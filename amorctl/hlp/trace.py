@@ -18,6 +18,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_path
+from amorctl.core.vecenv import close_env
 from amorctl.hlp.run import LoadedHlp, resolve_motions, setup
 
 
@@ -98,9 +99,14 @@ def trace_hlp(
         if total + 1 > view.max_episode_steps:  # the env was built with the HLP's episode length
             s.env.close()
             s = setup(
-                hlp.meta["run"], hlp.config, llp_checkpoint=hlp.dir.llp_checkpoint_path(), num_envs=1,
-                seed=seed, episode_seconds=(total + 2) * view.dt, data=data,
-            )  # fmt: skip
+                hlp.meta["run"],
+                hlp.config,
+                llp_checkpoint=hlp.dir.llp_checkpoint_path(),
+                num_envs=1,
+                seed=seed,
+                episode_seconds=(total + 2) * view.dt,
+                data=data,
+            )
             view = s.view
         env, m = s.env, len(s.meta["objectives"])
         view.select_clips(clips=[clips[0]], from_start=True)
@@ -140,9 +146,7 @@ def trace_hlp(
             segments=_segments(clip_arr, names),
         )
     finally:
-        close = getattr(s.env, "close", None)
-        if callable(close):
-            close()
+        close_env(s.env)
 
 
 def plot_traces(traces: list[HlpTrace], path: str | Path, title: str = "") -> None:
@@ -162,15 +166,26 @@ def plot_traces(traces: list[HlpTrace], path: str | Path, title: str = "") -> No
     for a, b, motion in first.segments:
         colour = motion_colour.setdefault(motion, shades[len(motion_colour) % 9])
         ax.axvspan(a * first.dt, b * first.dt, color=colour, alpha=0.6, lw=0)
-        ax.text((a + b) / 2 * first.dt, 1.02, motion, ha="center", va="bottom", fontsize=8,
-                transform=ax.get_xaxis_transform())  # fmt: skip
+        ax.text(
+            (a + b) / 2 * first.dt,
+            1.02,
+            motion,
+            ha="center",
+            va="bottom",
+            fontsize=8,
+            transform=ax.get_xaxis_transform(),
+        )
     styles = ("-", "--", ":", "-.")
     for k, tr in enumerate(traces):
         for i, name in enumerate(names):
             ax.plot(
-                tr.times, np.maximum(tr.weights[:, i], 1e-6), color=colors[i], lw=1.1, ls=styles[k % 4],
+                tr.times,
+                np.maximum(tr.weights[:, i], 1e-6),
+                color=colors[i],
+                lw=1.1,
+                ls=styles[k % 4],
                 label=f"{name}" if len(traces) == 1 else f"{name} ({tr.label})",
-            )  # fmt: skip
+            )
         for t in tr.times[tr.fell]:
             ax.axvline(t, color="k", ls=":", lw=1)
     ax.set_yscale("log")
@@ -206,14 +221,18 @@ def write_trace_mcap(traces: list[HlpTrace], path: str | Path) -> None:
         return {"title": title, "type": "object", "properties": props}
 
     joint_schema = {
-        "title": "amorctl.JointState", "type": "object",
-        "properties": {"name": {"type": "array", "items": {"type": "string"}},
-                       "position": {"type": "array", "items": {"type": "number"}}},
-    }  # fmt: skip
+        "title": "amorctl.JointState",
+        "type": "object",
+        "properties": {
+            "name": {"type": "array", "items": {"type": "string"}},
+            "position": {"type": "array", "items": {"type": "number"}},
+        },
+    }
     motion_schema = {
-        "title": "amorctl.Motion", "type": "object",
+        "title": "amorctl.Motion",
+        "type": "object",
         "properties": {"t": {"type": "number"}, "motion": {"type": "string"}, "fell": {"type": "boolean"}},
-    }  # fmt: skip
+    }
     with atomic_path(path) as tmp:
         ctx = foxglove.Context()
         with foxglove.open_mcap(tmp, allow_overwrite=True, context=ctx) as writer:

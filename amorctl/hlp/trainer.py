@@ -186,9 +186,16 @@ class HlpTrainer:
                 idx = perm[b * size : (b + 1) * size]
                 d = self.model.dist(x[idx])
                 loss, stats = ppo_loss(
-                    d.log_prob(u[idx]).sum(-1), old[idx], a[idx], self.model.value(x[idx]), r[idx],
-                    d.entropy().sum(-1), cfg.clip_coef, cfg.value_coef, cfg.entropy_coef,
-                )  # fmt: skip
+                    d.log_prob(u[idx]).sum(-1),
+                    old[idx],
+                    a[idx],
+                    self.model.value(x[idx]),
+                    r[idx],
+                    d.entropy().sum(-1),
+                    cfg.clip_coef,
+                    cfg.value_coef,
+                    cfg.entropy_coef,
+                )
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.max_grad_norm)

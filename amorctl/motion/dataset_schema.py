@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.core.frame_layout import STATE_ARRAYS
 from amorctl.motion.clips import MotionLibrary
 from amorctl.motion.source import MAX_ABS_VALUE, implausible
 
@@ -37,19 +38,7 @@ CHANNEL = "/amorctl/motion_clip"
 SCHEMA_NAME = "amorctl.MotionClip"
 ENCODER_ATTACHMENT = "motion_vae_encoder.safetensors"
 #: Per-frame arrays of :class:`MotionLibrary`, in the order they are stored.
-ARRAYS: tuple[str, ...] = (
-    "root_pos",
-    "root_quat",
-    "root_lin_vel",
-    "root_ang_vel",
-    "joint_pos",
-    "joint_vel",
-    "ee_pos",
-    "ee_quat",
-    "ee_lin_vel",
-    "frames",
-    "z",
-)
+ARRAYS: tuple[str, ...] = (*STATE_ARRAYS, "frames", "z")
 
 _ARRAY_SCHEMA = {
     "type": "object",

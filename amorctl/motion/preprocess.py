@@ -274,8 +274,16 @@ def _library(
 
 def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
     keep = (
-        "method", "floor_lift_max", "foot_sliding", "foot_sliding_source", "scale",
-        "npz_layout", "penetration_before_lift_m", "lower_foot_hover_max", "fk_check_error_m",
-        "body_names", "notes",
-    )  # fmt: skip
+        "method",
+        "floor_lift_max",
+        "foot_sliding",
+        "foot_sliding_source",
+        "scale",
+        "npz_layout",
+        "penetration_before_lift_m",
+        "lower_foot_hover_max",
+        "fk_check_error_m",
+        "body_names",
+        "notes",
+    )
     return {k: stats[k] for k in keep if k in stats}

@@ -30,9 +30,3 @@ def resolve_clip(library: MotionLibrary, query: str) -> ClipInfo:
     """The clip of ``library`` that ``query`` names (see :func:`resolve_name`)."""
     name = resolve_name(query, [c.name for c in library.clips], f"the {library.character} dataset")
     return next(c for c in library.clips if c.name == name)
-
-
-def resolve_clip_index(library: MotionLibrary, query: str) -> int:
-    """Index into ``library.clips`` of the clip ``query`` names."""
-    clip = resolve_clip(library, query)
-    return library.clips.index(clip)

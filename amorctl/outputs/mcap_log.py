@@ -73,15 +73,22 @@ def write_rollout_mcap(
         with foxglove.open_mcap(tmp, allow_overwrite=True, context=ctx) as writer:
             writer.write_metadata(
                 "amorctl.tune.session",
-                {"objectives": ",".join(names), "motion": rollout.motion or "", "dt": repr(rollout.dt),
-                 **(metadata or {})},
-            )  # fmt: skip
+                {
+                    "objectives": ",".join(names),
+                    "motion": rollout.motion or "",
+                    "dt": repr(rollout.dt),
+                    **(metadata or {}),
+                },
+            )
             actions = foxglove.Channel(
                 TOPIC_ACTIONS,
-                schema={"title": "amorctl.Actions", "type": "object",
-                        "properties": {"t": {"type": "number"}, "values": {"type": "array"}}},
+                schema={
+                    "title": "amorctl.Actions",
+                    "type": "object",
+                    "properties": {"t": {"type": "number"}, "values": {"type": "array"}},
+                },
                 context=ctx,
-            )  # fmt: skip
+            )
             w_ch = foxglove.Channel(
                 TOPIC_WEIGHTS, schema=_named_schema("amorctl.Weights", names), context=ctx
             )
@@ -113,10 +120,13 @@ def write_rollout_mcap(
                     continue
                 tf.log(_frame_transforms(rollout, k, lt), log_time=lt)
                 joints.log(
-                    {"name": jn, "position": rollout.joint_pos[k].tolist(),
-                     "velocity": rollout.joint_vel[k].tolist()},
+                    {
+                        "name": jn,
+                        "position": rollout.joint_pos[k].tolist(),
+                        "velocity": rollout.joint_vel[k].tolist(),
+                    },
                     log_time=lt,
-                )  # fmt: skip
+                )
                 ref_joints.log(
                     {"name": jn, "position": rollout.ref_joint_pos[k].tolist(), "velocity": []}, log_time=lt
                 )

@@ -195,8 +195,15 @@ def coverage_figure(doc: dict[str, Any], paths: list[Path]) -> None:
         fig.colorbar(im2, ax=axes[2], fraction=0.046, label="share of training episodes")
     else:
         axes[2].imshow(np.full_like(share, np.nan), aspect="auto")
-        axes[2].text(0.5, 0.5, "training weights not logged\n(run predates wcount/ columns)",
-                     ha="center", va="center", transform=axes[2].transAxes, fontsize=9)  # fmt: skip
+        axes[2].text(
+            0.5,
+            0.5,
+            "training weights not logged\n(run predates wcount/ columns)",
+            ha="center",
+            va="center",
+            transform=axes[2].transAxes,
+            fontsize=9,
+        )
     for ax2, title in ((axes[1], "gap per region (samples)"), (axes[2], "training episodes per region")):
         ax2.set_xticks(range(len(bins)), bins, fontsize=7)
         ax2.set_yticks(range(m), names, fontsize=7)

@@ -36,9 +36,20 @@ GL_INSTALL_HINT = (
 _GL_FAILED = 3  # the child's exit code when no OpenGL context could be made
 GHOST_RGBA = (0.35, 0.65, 1.0)  # the reference ghost's colour; alpha is ``ghost_alpha``
 BAR_COLOURS = np.array(
-    [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75],
-     [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]], dtype=np.uint8,
-)  # fmt: skip
+    [
+        [31, 119, 180],
+        [255, 127, 14],
+        [44, 160, 44],
+        [214, 39, 40],
+        [148, 103, 189],
+        [140, 86, 75],
+        [227, 119, 194],
+        [127, 127, 127],
+        [188, 189, 34],
+        [23, 190, 207],
+    ],
+    dtype=np.uint8,
+)
 
 
 @dataclass(frozen=True)
@@ -152,8 +163,12 @@ def _render_in_child(job: Path, partial: Path, out: Path, timeout_s: float) -> s
         try:
             proc = subprocess.run(
                 [sys.executable, "-m", "amorctl.outputs.video", str(job), str(partial)],
-                env=env, capture_output=True, text=True, timeout=timeout_s, check=False,
-            )  # fmt: skip
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+                check=False,
+            )
         except subprocess.TimeoutExpired:
             raise AmorError(f"rendering {out} took longer than {timeout_s:.0f} s") from None
         if proc.returncode == 0:

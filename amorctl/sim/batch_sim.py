@@ -390,9 +390,14 @@ class BatchSim:
             for sub in range(self.substeps):
                 target = self.delay.push(pd_target)  # the command of `latency_steps` ago
                 tau = servo_torque(
-                    target, self.joint_pos(), self.joint_vel(), self.kp, self.kd, self.torque_limit,
+                    target,
+                    self.joint_pos(),
+                    self.joint_vel(),
+                    self.kp,
+                    self.kd,
+                    self.torque_limit,
                     self.no_load_speed,
-                )  # fmt: skip
+                )
                 self.torque[:, sub] = tau
                 self.ctrl[:, 0, self.actuators] = tau / self.gear
                 qv_prev = self.qvel.copy()

@@ -79,11 +79,16 @@ def _random_inputs(n: int, j: int, e: int, seed: int, substeps: int = 5) -> Trac
         quat = rng.standard_normal((n, 4))
         ee_quat = rng.standard_normal((n, e, 4))
         return frame_features(
-            rng.standard_normal((n, 3)), quat / np.linalg.norm(quat, axis=-1, keepdims=True),
-            rng.standard_normal((n, 3)), rng.standard_normal((n, 3)), rng.standard_normal((n, j)),
-            rng.standard_normal((n, j)), rng.standard_normal((n, e, 3)),
-            ee_quat / np.linalg.norm(ee_quat, axis=-1, keepdims=True), rng.standard_normal((n, e, 3)),
-        )  # fmt: skip
+            rng.standard_normal((n, 3)),
+            quat / np.linalg.norm(quat, axis=-1, keepdims=True),
+            rng.standard_normal((n, 3)),
+            rng.standard_normal((n, 3)),
+            rng.standard_normal((n, j)),
+            rng.standard_normal((n, j)),
+            rng.standard_normal((n, e, 3)),
+            ee_quat / np.linalg.norm(ee_quat, axis=-1, keepdims=True),
+            rng.standard_normal((n, e, 3)),
+        )
 
     sim = frame()
     ref = sim + 0.1 * rng.standard_normal(sim.shape)
@@ -104,10 +109,14 @@ def _to_xp(x: TrackingInputs, xp: Any) -> TrackingInputs:
         return FrameParts(**{f.name: xp.asarray(getattr(p, f.name)) for f in dataclasses.fields(FrameParts)})
 
     return TrackingInputs(
-        sim=parts(x.sim), ref=parts(x.ref), torque=xp.asarray(x.torque), pd_target=xp.asarray(x.pd_target),
-        pd_target_prev=xp.asarray(x.pd_target_prev), pd_target_prev2=xp.asarray(x.pd_target_prev2),
+        sim=parts(x.sim),
+        ref=parts(x.ref),
+        torque=xp.asarray(x.torque),
+        pd_target=xp.asarray(x.pd_target),
+        pd_target_prev=xp.asarray(x.pd_target_prev),
+        pd_target_prev2=xp.asarray(x.pd_target_prev2),
         joint_acc=xp.asarray(x.joint_acc),
-    )  # fmt: skip
+    )
 
 
 def check_objective_set(spec: ObjectiveSetSpec, character: CharacterSpec, *, jax: bool = True) -> None:
@@ -158,16 +167,27 @@ def _tiny_config(character: str, dataset: Path, backend: str) -> TrainConfig:
     return merge(
         TrainConfig(),
         {
-            "run": {"iterations": 2, "checkpoint_every": 1, "tensorboard": False, "threads": 1,
-                    "backend": backend, "seed": 0},
-            "env": {"kind": "tracking", "character": character, "dataset": str(dataset),
-                    "num_envs": 4, "episode_seconds": 0.4},
+            "run": {
+                "iterations": 2,
+                "checkpoint_every": 1,
+                "tensorboard": False,
+                "threads": 1,
+                "backend": backend,
+                "seed": 0,
+            },
+            "env": {
+                "kind": "tracking",
+                "character": character,
+                "dataset": str(dataset),
+                "num_envs": 4,
+                "episode_seconds": 0.4,
+            },
             "network": {"actor_hidden": [16], "critic_hidden": [16]},
             # fp32: the parity check below compares the loaded (always fp32) policy with the trainer
             "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "precision": "fp32"},
         },
         "amorctl.testing",
-    )  # fmt: skip
+    )
 
 
 def _arrays_equal(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> list[str]:
@@ -195,9 +215,13 @@ def check_backend(spec: BackendSpec, character: CharacterSpec, dataset: Path) ->
     def fresh() -> tuple[Any, Any, Any]:
         backend = spec.make()
         env = backend.make_env(
-            character=e.character, dataset=e.dataset, objective_set=e.objective_set, num_envs=e.num_envs,
-            episode_seconds=e.episode_seconds, seed=config.run.seed,
-        )  # fmt: skip
+            character=e.character,
+            dataset=e.dataset,
+            objective_set=e.objective_set,
+            num_envs=e.num_envs,
+            episode_seconds=e.episode_seconds,
+            seed=config.run.seed,
+        )
         trainer = backend.make_trainer(env, config)
         assert isinstance(trainer, Trainer), f"backend {spec.name}: make_trainer does not give a Trainer"
         return backend, env, trainer

@@ -29,14 +29,16 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.core.config import TrainConfig, to_toml
-from amorctl.core.contracts import Snapshot, SnapshotEnv, Trainer
+from amorctl.core.config import TrainConfig, check_backend_levers, to_toml
+from amorctl.core.contracts import Snapshot, SnapshotEnv, Trainer, trainer_world_size
 from amorctl.core.dir_lock import dir_lock
 from amorctl.core.errors import AmorError
 from amorctl.core.files import StorageError, atomic_write_text, check_writable
-from amorctl.core.vecenv import VectorEnv
+from amorctl.core.vecenv import VectorEnv, close_env, diverged_total, has_fused_rollout
 from amorctl.envs.factory import make_env
+from amorctl.registry import get_registry
 from amorctl.train import distributed
+from amorctl.train.callbacks import Callbacks
 from amorctl.train.checkpoint import (
     Checkpoint,
     check_against_config,
@@ -132,7 +134,7 @@ def _restore(
     env: VectorEnv,
     trainer: Trainer,
     world: distributed.World | None = None,
-    on_note: Callable[[str], None] | None = None,
+    on_note: Callable[[str], None] = lambda text: None,
 ) -> int:
     """Load a checkpoint into the trainer (and env); returns its iteration.
 
@@ -154,7 +156,7 @@ def _restore(
             expected = Snapshot(kept, expected.meta)
         check_like(ckpt.path, "trainer", expected, trainer_state, finite=True)
         trainer.load_state_dict(trainer_state)
-        if not same_world and on_note is not None:
+        if not same_world:
             on_note(
                 f"{ckpt.path.name} was saved by {saved_by} process(es), this run has {world.size}: "
                 "networks, optimizer and normalizer continue, the envs restart from fresh episodes"
@@ -217,6 +219,8 @@ def train_run(
             training diverged. A new run that fails before its first checkpoint leaves nothing.
     """
     run = RunDir(out)
+    check_backend_levers(config, get_registry().backend(config.run.backend).levers)
+    callbacks = Callbacks(on_start, on_iteration, on_note, stop_after, stop_when)
     if not resume:  # stored absolute with its SHA-256: the run works from anywhere (rundir.py)
         config = record_dataset(config)
     if run.read_only:
@@ -226,7 +230,7 @@ def train_run(
         )
     world = distributed.current()
     if not world.is_main:  # other ranks stay quiet
-        on_start = on_iteration = on_note = None
+        callbacks = callbacks.quiet()
     ckpt: Checkpoint | None = None
     created = not out.exists()
     with contextlib.ExitStack() as lock:
@@ -256,8 +260,13 @@ def train_run(
         saved: list[Path] = []  # checkpoints this call wrote
         try:
             with captured_sim_warnings() as warnings:
-                hooks = (on_start, on_iteration, stop_after, stop_when)
-                return _train(config, run, ckpt, warnings, saved, *hooks, world, on_note)
+                runner = Runner(config, run, world, callbacks, warnings, saved)
+                try:
+                    with world.agreeing():
+                        start = runner.load(ckpt) if ckpt is not None else runner.write_config()
+                    return runner.learn(start)
+                finally:
+                    runner.close()
         except BaseException:
             if world.is_main and ckpt is None and not saved:
                 _remove_failed_run(out, created)
@@ -271,115 +280,128 @@ _READ_ONLY_REMEDY = {
 }
 
 
-def _train(
-    config: TrainConfig,
-    run: RunDir,
-    ckpt: Checkpoint | None,
-    warnings: SimWarnings,
-    saved: list[Path],
-    on_start: Callable[[VectorEnv, int, int], None] | None,
-    on_iteration: Callable[[dict[str, float], int, float], None] | None,
-    stop_after: int | None,
-    stop_when: Callable[[dict[str, float]], bool] | None,
-    world: distributed.World,
-    on_note: Callable[[str], None] | None,
-) -> RunResult:
-    out = run.path
-    env, recorder, trainer, start = _build(config, run, ckpt, world, on_note)
-    total = config.run.iterations
-    meta = run_meta(config, env)
-    batch = config.env.num_envs * config.ppo.num_steps
+class Runner:
+    """One rank's training run in a run directory: the env (wrapped by the episode recorder), the
+    backend's trainer, and the loop. :meth:`load` restores a checkpoint, :meth:`learn` iterates
+    (logging, reporting, stopping on a signal or a callback, checking divergence), :meth:`save`
+    writes a checkpoint (rank 0 gathers every rank's parts).
 
-    def checkpoint(iteration: int) -> Path:
+    Args:
+        config: the resolved config.
+        run: the run directory.
+        world: this process's place among the ranks (one process: ``World()``).
+        callbacks: progress reports and early stops (quiet on ranks other than 0).
+        warnings: where the simulator's warnings are counted (quoted if the run diverges).
+        saved: the list each saved checkpoint's path is appended to.
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        run: RunDir,
+        world: distributed.World,
+        callbacks: Callbacks,
+        warnings: SimWarnings,
+        saved: list[Path],
+    ) -> None:
+        self.config, self.run, self.world = config, run, world
+        self.callbacks, self.warnings, self.saved = callbacks, warnings, saved
+        backend = run.backend(config)
+        self.local = distributed.local_config(config, world)  # this rank's envs and seed
+        with world.agreeing():
+            self.env = make_env(self.local, backend)
+        # the trainer steps the env through the recorder (per-family survival, weight coverage); a
+        # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
+        fused = has_fused_rollout(self.env)
+        self.recorder = None if fused else EpisodeRecorder(self.env)
+        self.trainer: Trainer = backend.make_trainer(self.env if fused else self.recorder, self.local)
+        if trainer_world_size(self.trainer) != world.size:
+            raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
+        self.meta = run_meta(config, self.env)
+        self.resumed_from: Path | None = None
+        self.last_path: Path | None = None  # the newest complete checkpoint
+
+    def write_config(self) -> int:
+        """Start a new run: rank 0 writes its config. Returns the first iteration, 0."""
+        if self.world.is_main:
+            self.run.path.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(self.run.config_path, to_toml(self.config))
+        return 0
+
+    def load(self, ckpt: Checkpoint) -> int:
+        """Restore ``ckpt`` into the trainer (and the env); returns its iteration."""
+        start = _restore(
+            ckpt, self.local, self.run.config_path, self.env, self.trainer, self.world, self.callbacks.note
+        )
+        self.resumed_from = self.last_path = ckpt.path
+        return start
+
+    def save(self, iteration: int) -> Path:
+        """Checkpoint ``iteration``; its path on every rank. A storage failure says what is safe."""
         try:
-            return _checkpoint(run, config, world, iteration, meta, env, trainer, saved)
+            path = _checkpoint(
+                self.run, self.config, self.world, iteration, self.meta, self.env, self.trainer
+            )
         except StorageError as err:  # disk full, ...: say what is safe and how to go on
             keep = (
-                f"the newest complete checkpoint {last_path} is intact: {err.fix}, then continue with "
-                f"`amorctl train --resume --out {out}`"
-                if last_path is not None
+                f"the newest complete checkpoint {self.last_path} is intact: {err.fix}, then continue "
+                f"with `amorctl train --resume --out {self.run.path}`"
+                if self.last_path is not None
                 else f"no checkpoint was saved, so the run directory was removed: {err.fix} and run again"
             )
             raise StorageError(
                 err.path, err.reason, f"{err.path}: cannot write ({err.reason}); {keep}"
             ) from None
+        if self.world.is_main:
+            self.saved.append(path)
+        self.last_path = path
+        return path
 
-    metrics_log = (
-        _metrics_log(out, config, start if ckpt is not None else None)
-        if world.is_main
-        else distributed.QuietLog()
-    )
-    if on_start is not None:
-        on_start(env, start, total)
-    last_path: Path | None = ckpt.path if ckpt is not None else None
-    last: dict[str, float] = {}
-    interrupted = False
-    signal_name = ""
-    iteration = start
-    began = time.perf_counter()
-    try:
-        with stop_on_signals() as stop:
-            while iteration < total:
-                diverged_before = _diverged_total(env)
-                last = trainer.iteration()
-                iteration = trainer.iteration_count
-                last["wall_time_s"] = time.perf_counter() - began
-                if recorder is not None:
-                    last.update(recorder.metrics(world))
-                metrics_log.write(last)
-                if on_iteration is not None:
-                    on_iteration(last, total, time.perf_counter() - began)
-                diverged = _diverged_total(env) - diverged_before
-                if world.distributed:  # every rank decides on all ranks' counts
-                    diverged = int(world.sum(diverged)[0])
-                resumed = ckpt is not None and last_path == ckpt.path  # nothing saved since
-                _check_divergence(last, iteration, warnings, diverged, batch, last_path, resumed)
-                done_here = iteration - start
-                interrupted = world.any(  # all ranks stop at the same iteration
-                    stop.requested
-                    or (stop_after is not None and done_here >= stop_after)
-                    or (stop_when is not None and stop_when(last))
-                )
-                if interrupted or iteration % config.run.checkpoint_every == 0 or iteration == total:
-                    last_path = checkpoint(iteration)
-                if interrupted:
-                    signal_name = stop.signal_name
-                    break
-    finally:
-        metrics_log.close()
-        close = getattr(env, "close", None)
-        if callable(close):
-            close()
-    return RunResult(out, start, iteration, interrupted, last_path, last, signal_name)
+    def learn(self, start: int) -> RunResult:
+        """Iterate from ``start`` to ``run.iterations``, or until a stop; every rank stops at the
+        same iteration, with a checkpoint."""
+        config, world, total = self.config, self.world, self.config.run.iterations
+        batch = config.env.num_envs * config.ppo.num_steps
+        resuming = self.resumed_from is not None
+        log = _metrics_log(self.run.path, config, start if resuming else None) if world.is_main else None
+        metrics_log = log or distributed.QuietLog()
+        self.callbacks.start(self.env, start, total)
+        last: dict[str, float] = {}
+        interrupted, signal_name, iteration = False, "", start
+        began = time.perf_counter()
+        try:
+            with stop_on_signals() as stop:
+                while iteration < total:
+                    diverged_before = diverged_total(self.env)
+                    last = self.trainer.iteration()
+                    iteration = self.trainer.iteration_count
+                    last["wall_time_s"] = time.perf_counter() - began
+                    if self.recorder is not None:
+                        last.update(self.recorder.metrics(world))
+                    metrics_log.write(last)
+                    self.callbacks.iteration(last, total, time.perf_counter() - began)
+                    diverged = diverged_total(self.env) - diverged_before
+                    if world.distributed:  # every rank decides on all ranks' counts
+                        diverged = int(world.sum(diverged)[0])
+                    nothing_saved = resuming and self.last_path == self.resumed_from
+                    _check_divergence(
+                        last, iteration, self.warnings, diverged, batch, self.last_path, nothing_saved
+                    )
+                    interrupted = world.any(  # all ranks stop at the same iteration
+                        stop.requested or self.callbacks.wants_stop(last, iteration - start)
+                    )
+                    if interrupted or iteration % config.run.checkpoint_every == 0 or iteration == total:
+                        self.save(iteration)
+                    if interrupted:
+                        signal_name = stop.signal_name
+                        break
+        finally:
+            metrics_log.close()
+        return RunResult(self.run.path, start, iteration, interrupted, self.last_path, last, signal_name)
 
-
-def _build(
-    config: TrainConfig,
-    run: RunDir,
-    ckpt: Checkpoint | None,
-    world: distributed.World,
-    on_note: Callable[[str], None] | None,
-) -> tuple[VectorEnv, EpisodeRecorder | None, Trainer, int]:
-    """This rank's env, its episode recorder (None for fused envs), the trainer restored from
-    ``ckpt`` (else the run's config written) and the iteration to start at."""
-    backend = run.backend(config)
-    local = distributed.local_config(config, world)  # this rank's envs and seed
-    with world.agreeing():
-        env = make_env(local, backend)
-    # the trainer steps the env through the recorder (per-family survival, weight coverage); a
-    # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
-    recorder = None if callable(getattr(type(env), "fused_rollout", None)) else EpisodeRecorder(env)
-    trainer: Trainer = backend.make_trainer(env if recorder is None else recorder, local)
-    if getattr(trainer, "world_size", 1) != world.size:
-        raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
-    start = 0
-    with world.agreeing():
-        if ckpt is not None:
-            start = _restore(ckpt, local, run.config_path, env, trainer, world, on_note)
-        elif world.is_main:
-            run.path.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(run.config_path, to_toml(config))
-    return env, recorder, trainer, start
+    def close(self) -> None:
+        """Close the env (its simulator threads)."""
+        close_env(self.env)
 
 
 def _checkpoint(
@@ -390,7 +412,6 @@ def _checkpoint(
     meta: dict[str, Any],
     env: VectorEnv,
     trainer: Trainer,
-    saved: list[Path],
 ) -> Path:
     """Save iteration ``iteration`` (rank 0 writes every rank's parts); its path on every rank."""
     env_state = env.get_state() if isinstance(env, SnapshotEnv) else None
@@ -401,14 +422,7 @@ def _checkpoint(
         return Path(world.broadcast(str(checkpoint_paths(run.checkpoint_dir, iteration)[1])))
     path = save_checkpoint(run.checkpoint_dir, iteration, meta, trainer_state, env_state)
     prune_checkpoints(run.checkpoint_dir, config.run.keep_checkpoints)
-    saved.append(path)
     return Path(world.broadcast(str(path)))
-
-
-def _diverged_total(env: VectorEnv) -> int:
-    """Env steps whose simulation blew up so far (the tracking env's documented ``diverged_total``
-    step statistic; 0 for envs without a simulator)."""
-    return int(getattr(env, "diverged_total", 0) or 0)
 
 
 def _check_divergence(

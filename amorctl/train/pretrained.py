@@ -34,10 +34,26 @@ CARD_FILE = "card.json"
 CARD_FORMAT = "amorctl-pretrained/1"
 #: What a card records (``figures`` and ``notes`` may be empty).
 CARD_KEYS = (
-    "format", "name", "description", "character", "env_kind", "backend", "objectives", "iteration",
-    "env_steps", "episodes", "wall_time_s", "command", "commit", "source_run", "created_utc", "dataset",
-    "summary", "figures", "notes",
-)  # fmt: skip
+    "format",
+    "name",
+    "description",
+    "character",
+    "env_kind",
+    "backend",
+    "objectives",
+    "iteration",
+    "env_steps",
+    "episodes",
+    "wall_time_s",
+    "command",
+    "commit",
+    "source_run",
+    "created_utc",
+    "dataset",
+    "summary",
+    "figures",
+    "notes",
+)
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 
 

@@ -98,8 +98,10 @@ def git_commit(where: Path) -> str:
             return ""
         dirty = subprocess.run(
             ["git", "-C", str(where), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, timeout=10,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
         return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return ""
@@ -200,9 +202,17 @@ def export_pretrained(
 
 
 def _card(
-    run: RunDir, ckpt: Any, name: str, description: str, command: str, commit: str | None, notes: str,
-    figures: list[str], dataset: Path | None, folder: Path,
-) -> dict[str, Any]:  # fmt: skip
+    run: RunDir,
+    ckpt: Any,
+    name: str,
+    description: str,
+    command: str,
+    commit: str | None,
+    notes: str,
+    figures: list[str],
+    dataset: Path | None,
+    folder: Path,
+) -> dict[str, Any]:
     """The card's fields (:data:`amorctl.train.pretrained.CARD_KEYS`)."""
     cfg = run.config
     tm = ckpt.trainer.meta

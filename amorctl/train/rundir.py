@@ -38,7 +38,7 @@ from amorctl.train.checkpoint import (
     list_checkpoints,
     load_checkpoint,
 )
-from amorctl.train.metrics import METRICS_FILE, TB_DIR
+from amorctl.train.metrics import METRICS_FILE
 
 CONFIG_FILE = "config.toml"
 CHECKPOINT_DIR = "checkpoints"
@@ -95,10 +95,6 @@ class RunDir:
     @property
     def metrics_path(self) -> Path:
         return self.path / METRICS_FILE
-
-    @property
-    def tensorboard_dir(self) -> Path:
-        return self.path / TB_DIR
 
     def exists(self) -> bool:
         """Whether the directory holds a run (a config or a checkpoint)."""

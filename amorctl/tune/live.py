@@ -33,7 +33,12 @@ from amorctl.tune.session import PinnedMotion, StepRecord, geom_table
 
 SLIDER_MAX = 1.0
 SLIDER_STEP = 0.01
-TEXT_EVERY = 5  # refresh the page's text every this many control steps (10 Hz at 50 Hz control)
+TEXT_HZ = 10.0  # refresh the page's text this often (every control step when control is slower)
+
+
+def text_refresh_steps(dt: float) -> int:
+    """Control steps between text refreshes: ``TEXT_HZ`` at the control period ``dt`` (seconds)."""
+    return max(1, round(1.0 / (dt * TEXT_HZ)))
 
 
 class LiveSession:
@@ -375,12 +380,13 @@ class LiveApp:
 
     def _loop(self) -> None:
         dt = self.session.tenv.dt
+        text_every = text_refresh_steps(dt)
         next_t = time.perf_counter()
         try:
             while not self._stop.is_set():
                 self.session.step()
                 self._refresh_scene()
-                if self.session.steps_total % TEXT_EVERY == 0:
+                if self.session.steps_total % text_every == 0:
                     self._refresh_text()
                 if self.realtime:
                     next_t = max(next_t + dt, time.perf_counter() - 0.5)

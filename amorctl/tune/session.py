@@ -25,6 +25,7 @@ from amorctl.analysis.rollout import Rollout, rollout
 from amorctl.core.contracts import TrackingView, tracking_view
 from amorctl.core.errors import AmorError
 from amorctl.core.schedule import Schedule
+from amorctl.core.vecenv import close_env
 from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
 from amorctl.envs.wrappers import FixedWeights
 from amorctl.motion.resolve import resolve_name
@@ -201,8 +202,15 @@ class PinnedMotion:
         view = self.view
         if view is None:
             e1, e3, e4 = np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4))
-            return dict(joint_pos=e1, joint_vel=e1, ref_joint_pos=e1, body_pos=e3, body_quat=e4,
-                        ref_body_pos=e3, ref_body_quat=e4)  # fmt: skip
+            return dict(
+                joint_pos=e1,
+                joint_vel=e1,
+                ref_joint_pos=e1,
+                body_pos=e3,
+                body_quat=e4,
+                ref_body_pos=e3,
+                ref_body_quat=e4,
+            )
         frame = view.reference_index()[:1]
         body_pos, body_quat = self.body_poses(view.qpos()[0])
         ref_pos, ref_quat = self.body_poses(view.reference_qpos(frame)[0])
@@ -225,9 +233,7 @@ class PinnedMotion:
 
     def close(self) -> None:
         """Release the simulation."""
-        close = getattr(self.base, "close", None)
-        if callable(close):
-            close()
+        close_env(self.base)
 
 
 # ---------------------------------------------------------------------------- a whole rollout
@@ -394,8 +400,18 @@ def _pose_arrays(tenv: PinnedMotion, ro: Rollout) -> dict[str, Any]:
     steps, view = ro.num_steps, tenv.view
     if view is None:
         empty, e3, e4 = np.zeros((steps, 0)), np.zeros((steps, 0, 3)), np.zeros((steps, 0, 4))
-        return dict(joint_pos=empty, joint_vel=empty, ref_joint_pos=empty, body_pos=e3, body_quat=e4,
-                    ref_body_pos=e3, ref_body_quat=e4, joint_names=(), qpos=None, ref_qpos=None)  # fmt: skip
+        return dict(
+            joint_pos=empty,
+            joint_vel=empty,
+            ref_joint_pos=empty,
+            body_pos=e3,
+            body_quat=e4,
+            ref_body_pos=e3,
+            ref_body_quat=e4,
+            joint_names=(),
+            qpos=None,
+            ref_qpos=None,
+        )
     assert ro.qpos is not None and ro.frame_index is not None and ro.qpos_joint_pos is not None
     qpos = ro.qpos[:, 0]
     frames = ro.frame_index[:, 0]

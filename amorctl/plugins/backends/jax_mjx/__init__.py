@@ -24,6 +24,7 @@ from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
+from amorctl.plugins.backends.host import load_library
 from amorctl.plugins.backends.jax_mjx.xla_cpu import disable_concurrency_optimized_scheduler
 
 disable_concurrency_optimized_scheduler()
@@ -82,7 +83,7 @@ class JaxMjxBackend:
         from amorctl.registry import get_registry
 
         spec = get_registry().character(character)
-        library = _load_library(character, dataset)
+        library = load_library(character, dataset)
         steps = max(1, round(episode_seconds * spec.control_hz))
         return MjxTrackingEnv(
             spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
@@ -109,21 +110,6 @@ def import_mjx_quietly() -> None:
     MJX's JAX implementation, never warp, so the lines say nothing to its users."""
     with contextlib.redirect_stdout(io.StringIO()):
         importlib.import_module("mujoco.mjx")
-
-
-def _load_library(character: str, dataset: str | Path | None) -> Any:
-    """The motion library to track: ``dataset`` if given, else the character's built-in clips
-    (preprocessed into the user cache on first use), as torch-cpu loads it."""
-    from amorctl.motion.cache import default_dataset
-    from amorctl.motion.dataset import load_dataset
-
-    path = Path(dataset) if dataset else default_dataset(character)
-    if not path.is_file():
-        raise AmorError(f"{path}: motion dataset not found")
-    library = load_dataset(path)
-    if library.character != character:
-        raise AmorError(f"{path}: dataset is for character {library.character!r}, not {character!r}")
-    return library
 
 
 @hookimpl

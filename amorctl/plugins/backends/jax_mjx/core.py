@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from amorctl.core.frame_layout import TrackingInputs, frame_features, split_frame
+from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_features, split_frame
 from amorctl.core.geometry import quat_conj, quat_rotate
 from amorctl.core.specs import CharacterSpec
 from amorctl.motion.clips import MotionLibrary
@@ -137,22 +137,8 @@ class MjxTracking:
 
         lib = library
         f32 = partial(jnp.asarray, dtype=jnp.float32)
-        self.lib = {
-            k: f32(getattr(lib, k))
-            for k in ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel", "joint_pos", "joint_vel",
-                      "ee_pos", "ee_quat", "ee_lin_vel")
-        }  # fmt: skip
-        ref = frame_features(
-            lib.root_pos,
-            lib.root_quat,
-            lib.root_lin_vel,
-            lib.root_ang_vel,
-            lib.joint_pos,
-            lib.joint_vel,
-            lib.ee_pos,
-            lib.ee_quat,
-            lib.ee_lin_vel,
-        )  # fmt: skip  (float64 numpy, as the C env, then float32)
+        self.lib = {k: f32(getattr(lib, k)) for k in STATE_ARRAYS}
+        ref = frame_features(*(getattr(lib, k) for k in STATE_ARRAYS))  # float64 numpy as the C env
         self.ref_frames = f32(ref)
         self.context_frames = f32(lib.frames)
         self.latents = f32(lib.z)

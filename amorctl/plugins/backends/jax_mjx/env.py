@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from amorctl.core.contracts import Snapshot
+from amorctl.core.contracts import Snapshot, survival_bonus_of
 from amorctl.core.env_random import Seed
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import frame_dim
@@ -77,6 +77,7 @@ class MjxTrackingEnv:
             descriptions=tuple(objectives.descriptions),
             low=np.asarray(objectives.low, dtype=np.float64),
             high=np.asarray(objectives.high, dtype=np.float64),
+            survival_bonus=survival_bonus_of(objectives),
         )
         fixed = None if fixed_weights is None else _check_weights(fixed_weights, m)
         self.num_envs = n = int(num_envs)
@@ -86,10 +87,16 @@ class MjxTrackingEnv:
         if n % self.mesh.size:
             raise AmorError(f"num_envs = {n} must be a multiple of the {self.mesh.size} local JAX devices")
         self.core = MjxTracking(
-            ch, library, objectives, num_envs=n, max_episode_steps=self.max_episode_steps,
-            action_mode=action_mode, future_frames=tuple(int(o) for o in future_frames),
-            fixed_weights=fixed, fall_height_fraction=fall_height_fraction,
-        )  # fmt: skip
+            ch,
+            library,
+            objectives,
+            num_envs=n,
+            max_episode_steps=self.max_episode_steps,
+            action_mode=action_mode,
+            future_frames=tuple(int(o) for o in future_frames),
+            fixed_weights=fixed,
+            fall_height_fraction=fall_height_fraction,
+        )
         self.model = self.core.model
         self.fall_drop, self.future_frames = self.core.fall_drop, self.core.future_frames
         jn, e = ch.num_joints, len(ch.end_effectors)
@@ -97,9 +104,13 @@ class MjxTrackingEnv:
         self.obs_layout: dict[str, slice] = {}
         o = 0
         for name, size in (
-            ("proprio", d), ("prev_targets", 2 * jn), ("ref_frame", d), ("latent", library.latent_dim),
-            ("future_frames", d * len(self.core.future_frames)), ("weights", m),
-        ):  # fmt: skip
+            ("proprio", d),
+            ("prev_targets", 2 * jn),
+            ("ref_frame", d),
+            ("latent", library.latent_dim),
+            ("future_frames", d * len(self.core.future_frames)),
+            ("weights", m),
+        ):
             self.obs_layout[name] = slice(o, o + size)
             o += size
         self.obs_dim, self.action_dim = o, jn
@@ -198,10 +209,12 @@ class MjxTrackingEnv:
             bool(from_start),
         )
         self.sel = Selection(
-            valid=jnp.asarray(padded), num_valid=jnp.asarray(len(valid), jnp.int32),
-            env_clips=jnp.asarray(per_env, jnp.int32), pinned=jnp.asarray(pinned),
+            valid=jnp.asarray(padded),
+            num_valid=jnp.asarray(len(valid), jnp.int32),
+            env_clips=jnp.asarray(per_env, jnp.int32),
+            pinned=jnp.asarray(pinned),
             from_start=jnp.asarray(bool(from_start)),
-        )  # fmt: skip
+        )
 
     def tracking_view(self) -> Any:
         """The :class:`~amorctl.core.contracts.TrackingView` analysis reads this env through."""
@@ -271,8 +284,19 @@ class MjxTrackingEnv:
                 new, out = core.step(st, sel, action)
                 trunc = out.truncated & ~out.terminated
                 final_value = jnp.where(trunc[:, None], value_of(out.final_obs), 0.0)
-                rec = (st.obs, action, mean, value, logp, final_value, out.rewards, st.weights,
-                       out.terminated, trunc, out.diverged)  # fmt: skip
+                rec = (
+                    st.obs,
+                    action,
+                    mean,
+                    value,
+                    logp,
+                    final_value,
+                    out.rewards,
+                    st.weights,
+                    out.terminated,
+                    trunc,
+                    out.diverged,
+                )
                 return new, rec
 
             keys = jax.random.split(key, num_steps)
@@ -282,11 +306,18 @@ class MjxTrackingEnv:
             following = jnp.concatenate([val[1:], last[None]], axis=0)
             T, n = num_steps, core.num_envs
             batch = mm.Batch(
-                obs=obs.reshape(T * n, -1), actions=act.reshape(T * n, -1), log_probs=logp.reshape(T * n),
-                means=mean.reshape(T * n, -1), values=val.reshape(T * n, -1), weights=w.reshape(T * n, -1),
-                rewards=rew, next_values=jnp.where(trunc[..., None], final_val, following),
-                terminated=term, truncated=trunc, old_log_std=log_std,
-            )  # fmt: skip
+                obs=obs.reshape(T * n, -1),
+                actions=act.reshape(T * n, -1),
+                log_probs=logp.reshape(T * n),
+                means=mean.reshape(T * n, -1),
+                values=val.reshape(T * n, -1),
+                weights=w.reshape(T * n, -1),
+                rewards=rew,
+                next_values=jnp.where(trunc[..., None], final_val, following),
+                terminated=term,
+                truncated=trunc,
+                old_log_std=log_std,
+            )
             return state, batch, jnp.sum(div)
 
         return jax.jit(rollout)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.plugins.backends.host import LOG_STD, linear_param_name
 
 Params = dict[str, Any]
 
@@ -149,9 +150,10 @@ def params_to_arrays(params: Params) -> dict[str, np.ndarray]:
     for name in ("actor", "critic"):
         net = params[name]["net"]
         for i, layer in enumerate(_layer_names(net)):
-            arrays[f"{name}.net.{2 * i}.weight"] = np.asarray(net[layer]["kernel"], np.float32).T.copy()
-            arrays[f"{name}.net.{2 * i}.bias"] = np.asarray(net[layer]["bias"], np.float32).copy()
-    arrays["actor.log_std"] = np.asarray(params["actor"]["log_std"], np.float32).copy()
+            kernel, bias = net[layer]["kernel"], net[layer]["bias"]
+            arrays[linear_param_name(name, i, "weight")] = np.asarray(kernel, np.float32).T.copy()
+            arrays[linear_param_name(name, i, "bias")] = np.asarray(bias, np.float32).copy()
+    arrays[LOG_STD] = np.asarray(params["actor"]["log_std"], np.float32).copy()
     return arrays
 
 
@@ -180,15 +182,15 @@ def arrays_to_params(arrays: dict[str, np.ndarray], like: Params) -> Params:
         for i, layer in enumerate(_layer_names(net)):
             kernel_shape = tuple(net[layer]["kernel"].shape)
             layers[layer] = {
-                "kernel": get(f"{name}.net.{2 * i}.weight", kernel_shape[::-1]).T,
-                "bias": get(f"{name}.net.{2 * i}.bias", tuple(net[layer]["bias"].shape)),
+                "kernel": get(linear_param_name(name, i, "weight"), kernel_shape[::-1]).T,
+                "bias": get(linear_param_name(name, i, "bias"), tuple(net[layer]["bias"].shape)),
             }
-        expected = {f"{name}.net.{2 * i}.{p}" for i in range(len(layers)) for p in ("weight", "bias")}
+        expected = {linear_param_name(name, i, p) for i in range(len(layers)) for p in ("weight", "bias")}
         extra = {k for k in arrays if k.startswith(f"{name}.net.")} - expected
         if extra:
             raise AmorError(
                 f"checkpoint does not fit the run's network configuration: unexpected {sorted(extra)[0]!r}"
             )
         out[name] = {"net": layers}
-    out["actor"]["log_std"] = get("actor.log_std", tuple(like["actor"]["log_std"].shape))
+    out["actor"]["log_std"] = get(LOG_STD, tuple(like["actor"]["log_std"].shape))
     return out

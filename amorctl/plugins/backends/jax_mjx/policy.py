@@ -15,6 +15,7 @@ import numpy as np
 from amorctl.core.config import NetworkConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.plugins.backends.host import LOG_STD, export_snapshot, linear_param_name
 from amorctl.plugins.backends.jax_mjx.networks import (
     HostNormalizer,
     Networks,
@@ -22,8 +23,6 @@ from amorctl.plugins.backends.jax_mjx.networks import (
     normalize,
     params_to_arrays,
 )
-
-EXPORT_FORMAT = "amorctl-mlp-policy/1"  # torch-cpu's export format (same names and meaning)
 
 
 class JaxPolicy:
@@ -78,24 +77,13 @@ class JaxPolicy:
             "normalizer/scale": (np.sqrt(self.normalizer.var) + self.normalizer.eps).astype(np.float32),
         }
         named = params_to_arrays(self.params)
-        arrays["actor/log_std"] = named["actor.log_std"]
+        arrays["actor/log_std"] = named[LOG_STD]
         counts = {}
         for name in ("actor", "critic"):
             i = 0
-            while f"{name}.net.{2 * i}.weight" in named:
-                arrays[f"{name}/{i}/weight"] = named[f"{name}.net.{2 * i}.weight"]
-                arrays[f"{name}/{i}/bias"] = named[f"{name}.net.{2 * i}.bias"]
+            while linear_param_name(name, i, "weight") in named:
+                arrays[f"{name}/{i}/weight"] = named[linear_param_name(name, i, "weight")]
+                arrays[f"{name}/{i}/bias"] = named[linear_param_name(name, i, "bias")]
                 i += 1
             counts[name] = i
-        meta = {
-            "format": EXPORT_FORMAT,
-            "activation": "elu",
-            "obs_clip": float(self.normalizer.clip),
-            "actor_layers": counts["actor"],
-            "critic_layers": counts["critic"],
-            "obs_dim": self.obs_dim,
-            "action_dim": self.action_dim,
-            "objectives": list(self.objectives),
-            "observation_layout": {k: list(v) for k, v in self._layout.items()},
-        }
-        return Snapshot(arrays, meta)
+        return export_snapshot(self, arrays, counts)

@@ -38,7 +38,8 @@ import numpy as np
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
-from amorctl.core.vecenv import VectorEnv
+from amorctl.core.vecenv import VectorEnv, has_fused_rollout
+from amorctl.plugins.backends.host import EPISODE_STATS, EPISODE_WINDOW, check_env_meta, load_counters
 from amorctl.plugins.backends.jax_mjx import devices
 from amorctl.plugins.backends.jax_mjx import moppo_math as mm
 from amorctl.plugins.backends.jax_mjx.networks import (
@@ -48,17 +49,6 @@ from amorctl.plugins.backends.jax_mjx.networks import (
     arrays_to_params,
     normalize,
     params_to_arrays,
-)
-
-EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
-EPISODE_STATS = (
-    "ep_return",
-    "ep_scalar",
-    "ep_length",
-    "recent_return",
-    "recent_scalar",
-    "recent_length",
-    "recent_survived",
 )
 
 
@@ -86,9 +76,14 @@ def _learn(
     """GAE, all minibatch updates, and the reductions the metrics and the normalizer need."""
     T, N, m = batch.rewards.shape
     adv, ret = mm.gae(
-        batch.rewards, batch.values.reshape(T, N, m), batch.next_values, batch.terminated,
-        batch.truncated, cfg.gamma, cfg.gae_lambda,
-    )  # fmt: skip
+        batch.rewards,
+        batch.values.reshape(T, N, m),
+        batch.next_values,
+        batch.terminated,
+        batch.truncated,
+        cfg.gamma,
+        cfg.gae_lambda,
+    )
     adv, ret = adv.reshape(T * N, m), ret.reshape(T * N, m)
     keys = jax.random.split(key, cfg.num_epochs)
     perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(keys)
@@ -134,7 +129,7 @@ class JaxMOPPOTrainer:
         self._values = jax.jit(lambda p, nm, o: self.nets.values(p, normalize(o, nm, clip)))
         self._learn = jax.jit(partial(_learn, self.nets, self.optimizer, self.loss_cfg))
         # a class attribute, so a wrapper (FixedWeights) that forwards attributes takes the host path
-        self.fused = callable(getattr(type(env), "fused_rollout", None))
+        self.fused = has_fused_rollout(env)
         if self.fused:
             self._rollout = env.fused_rollout(self.nets, clip, ppo.num_steps, self.mesh)  # type: ignore[attr-defined]
 
@@ -218,9 +213,15 @@ class JaxMOPPOTrainer:
                 next_val[trunc_buf[t]] = np.asarray(self._values(params, norm, final))[trunc_buf[t]]
             rewards = np.asarray(rewards, np.float32)
             for name, value_t in (
-                ("obs", obs), ("act", action), ("mean", mean), ("val", value), ("logp", logp),
-                ("next", next_val), ("rew", rewards), ("w", weights),
-            ):  # fmt: skip
+                ("obs", obs),
+                ("act", action),
+                ("mean", mean),
+                ("val", value),
+                ("logp", logp),
+                ("next", next_val),
+                ("rew", rewards),
+                ("w", weights),
+            ):
                 bufs[name].append(value_t)
             self._track_episodes(rewards, weights, term_buf[t], trunc_buf[t])
             self.obs = np.asarray(next_obs, dtype=np.float32)
@@ -375,14 +376,7 @@ class JaxMOPPOTrainer:
         """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape, objective
         set or backend."""
         meta, arrays = state.meta, state.arrays
-        expect = {
-            "obs_dim": self.env.obs_dim,
-            "action_dim": self.env.action_dim,
-            "objectives": list(self.names),
-        }
-        for key, value in expect.items():
-            if meta.get(key) != value:
-                raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+        check_env_meta(meta, self.env, self.names)
         if "rng.jax" not in arrays:
             raise AmorError("checkpoint was not written by the jax-mjx backend (no rng.jax array)")
         params = arrays_to_params(arrays, self.params)
@@ -406,7 +400,4 @@ class JaxMOPPOTrainer:
         except KeyError as exc:
             raise AmorError(f"checkpoint does not fit this network configuration: missing {exc}") from None
         self.state = devices.replicate(self.mesh, mm.TrainState(params, opt_state))
-        self.iteration_count = int(meta["iteration"])
-        self.env_steps = int(meta["env_steps"])
-        self.recent_ptr = int(meta["recent_ptr"])
-        self.episodes = int(meta["episodes"])
+        load_counters(self, meta)

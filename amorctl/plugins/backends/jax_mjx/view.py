@@ -6,8 +6,7 @@ state (copied to numpy on every call). Shapes: N envs, J joints, E end effectors
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from types import MappingProxyType
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
@@ -15,54 +14,21 @@ import mujoco
 import numpy as np
 
 from amorctl.core.frame_layout import frame_features, split_frame
+from amorctl.envs.tracking_view import TrackingViewBase
 
 if TYPE_CHECKING:
     from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
 
 
-class MjxTrackingView:
+class MjxTrackingView(TrackingViewBase):
     """The read-only view of an :class:`~.env.MjxTrackingEnv` (plus ``select_clips``)."""
 
     def __init__(self, env: MjxTrackingEnv) -> None:
-        self._env = env
-        self.character = env.character
-        self.dt = float(env.dt)
-        self.max_episode_steps = int(env.max_episode_steps)
-        self.num_envs = int(env.num_envs)
-        self.fall_drop = float(env.fall_drop)
-        self.future_frames = tuple(int(o) for o in env.future_frames)
-        lib = env.library
-        self._clip_names = tuple(c.name for c in lib.clips)
-        self._clip_seconds = np.array([lib.clip_duration(c) for c in lib.clips], dtype=np.float64)
-        self._layout = MappingProxyType({k: (s.start, s.stop) for k, s in env.obs_layout.items()})
+        super().__init__(env)
 
     @property
     def model(self) -> mujoco.MjModel:
         return self._env.model
-
-    @property
-    def clip_names(self) -> tuple[str, ...]:
-        return self._clip_names
-
-    @property
-    def clip_seconds(self) -> np.ndarray:
-        return self._clip_seconds.copy()
-
-    @property
-    def clip_frame_counts(self) -> np.ndarray:
-        return self._env.library.lengths
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return tuple(self._env.library.joint_names)
-
-    @property
-    def observation_layout(self) -> Mapping[str, tuple[int, int]]:
-        return self._layout
-
-    @property
-    def weights(self) -> np.ndarray:
-        return self._env.weights
 
     def _state(self):
         return self._env._require()
@@ -86,9 +52,17 @@ class MjxTrackingView:
         st, core = self._state(), self._env.core
         pos, quat, lin, ang = core._root(st.data)
         frames = frame_features(
-            pos, quat, lin, ang, st.data.qpos[:, core.joint_qpos], st.data.qvel[:, core.joint_dof],
-            st.ee_pos, st.ee_quat, st.ee_lin_vel, jnp,
-        )  # fmt: skip
+            pos,
+            quat,
+            lin,
+            ang,
+            st.data.qpos[:, core.joint_qpos],
+            st.data.qvel[:, core.joint_dof],
+            st.ee_pos,
+            st.ee_quat,
+            st.ee_lin_vel,
+            jnp,
+        )
         return np.array(split_frame(np.asarray(frames, np.float64), core.num_joints, core.num_ee).ee_pos)
 
     def reference_frames(self, frames: np.ndarray) -> np.ndarray:

@@ -13,11 +13,12 @@ from typing import Any
 import torch
 
 from amorctl.api import hookimpl
-from amorctl.core.config import TrainConfig
+from amorctl.core.config import LEVERS, TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
+from amorctl.plugins.backends.host import load_library
 
 NAME = "torch-cpu"
 
@@ -44,7 +45,7 @@ class TorchCpuBackend:
         from amorctl.registry import get_registry
 
         spec = get_registry().character(character)  # unknown names fail here, clearly
-        library = _load_library(character, dataset)
+        library = load_library(character, dataset)
         steps = max(1, round(episode_seconds * spec.control_hz))
         if "nthread" not in options:  # the cores this process may use, shared among the node's ranks
             options["nthread"] = _threads_per_local_rank()
@@ -103,26 +104,14 @@ def bf16_supported() -> bool:
     return "avx512_bf16" in flags or "amx_bf16" in flags
 
 
-def _load_library(character: str, dataset: str | Path | None) -> Any:
-    """The motion library to track: ``dataset`` if given, else the character's built-in clips
-    (preprocessed into the user cache on first use)."""
-    from amorctl.motion.cache import default_dataset
-    from amorctl.motion.dataset import load_dataset
-
-    path = Path(dataset) if dataset else default_dataset(character)
-    if not path.is_file():
-        raise AmorError(f"{path}: motion dataset not found")
-    library = load_dataset(path)
-    if library.character != character:
-        raise AmorError(f"{path}: dataset is for character {library.character!r}, not {character!r}")
-    return library
-
-
 @hookimpl
 def amorctl_register_backends(register: Any) -> None:
     """Register ``torch-cpu``."""
     register(
         BackendSpec(
-            name=NAME, description="MuJoCo C physics + PyTorch MOPPO on the CPU", make=TorchCpuBackend
+            name=NAME,
+            description="MuJoCo C physics + PyTorch MOPPO on the CPU",
+            make=TorchCpuBackend,
+            levers=frozenset(LEVERS),
         )
     )

@@ -52,7 +52,8 @@ from torch import nn
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
-from amorctl.core.vecenv import VectorEnv
+from amorctl.core.vecenv import VectorEnv, weight_sampler_of
+from amorctl.plugins.backends.host import EPISODE_WINDOW
 from amorctl.plugins.backends.torch_cpu.batch import Batch
 from amorctl.plugins.backends.torch_cpu.gae import gae
 from amorctl.plugins.backends.torch_cpu.networks import (
@@ -76,7 +77,6 @@ from amorctl.plugins.backends.torch_cpu.weight_feedback import WeightFeedback
 
 __all__ = ["Batch", "MOPPOTrainer", "Replicas"]
 
-EPISODE_WINDOW = 100  # episode statistics are means over this many most recent episodes
 LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
 CHECK_EVERY = 10  # data-parallel: compare the ranks' parameters every this many iterations
 
@@ -145,8 +145,8 @@ class MOPPOTrainer:
         channels = len(self.channel_names)
         advantage = norm == "value+advantage"
         self.return_scale = None if norm == "off" else ReturnScale(channels, advantage=advantage)
-        sampler = getattr(env, "weight_sampler", None)
-        adaptive = sampler is not None and bool(getattr(sampler, "adaptive", False))
+        sampler = weight_sampler_of(env)
+        adaptive = sampler is not None and bool(sampler.adaptive)
         self.feedback = WeightFeedback(sampler, n, ppo.gamma) if adaptive else None
 
     def reset_env(self, seed: int) -> None:

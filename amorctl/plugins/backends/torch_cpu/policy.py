@@ -28,9 +28,8 @@ from torch import nn
 from amorctl.core.config import NetworkConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.plugins.backends.host import export_snapshot
 from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer, load_modules
-
-EXPORT_FORMAT = "amorctl-mlp-policy/1"
 
 
 class TorchPolicy:
@@ -95,18 +94,7 @@ class TorchPolicy:
                 arrays[f"{name}/{i}/weight"] = layer.weight.detach().to(torch.float32).numpy().copy()
                 arrays[f"{name}/{i}/bias"] = layer.bias.detach().to(torch.float32).numpy().copy()
             counts[name] = len(linears)
-        meta = {
-            "format": EXPORT_FORMAT,
-            "activation": "elu",
-            "obs_clip": float(self.normalizer.clip),
-            "actor_layers": counts["actor"],
-            "critic_layers": counts["critic"],
-            "obs_dim": self.obs_dim,
-            "action_dim": self.action_dim,
-            "objectives": list(self.objectives),
-            "observation_layout": {k: list(v) for k, v in self._layout.items()},
-        }
-        return Snapshot(arrays, meta)
+        return export_snapshot(self, arrays, counts)
 
     @torch.no_grad()
     def __call__(self, obs: np.ndarray) -> np.ndarray:

@@ -10,19 +10,9 @@ import torch
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.optimizer_state import DAMAGED, check_param_groups, check_state, number_in
+from amorctl.plugins.backends.host import EPISODE_STATS, check_env_meta, load_counters
 from amorctl.plugins.backends.torch_cpu.networks import load_modules, modules_to_arrays
 from amorctl.plugins.backends.torch_cpu.weight_feedback import ARRAYS as FEEDBACK_ARRAYS
-
-#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
-EPISODE_STATS = (
-    "ep_return",
-    "ep_scalar",
-    "ep_length",
-    "recent_return",
-    "recent_scalar",
-    "recent_length",
-    "recent_survived",
-)
 
 
 def trainer_state(trainer: Any) -> Snapshot:
@@ -104,14 +94,7 @@ def _check_optimizer_state(
 def load_trainer_state(trainer: Any, state: Snapshot) -> None:
     """Restore :meth:`state_dict`. Raises AmorError on a checkpoint of another shape or objective set."""
     meta, arrays = state.meta, state.arrays
-    expect = {
-        "obs_dim": trainer.env.obs_dim,
-        "action_dim": trainer.env.action_dim,
-        "objectives": list(trainer.names),
-    }
-    for key, value in expect.items():
-        if meta.get(key) != value:
-            raise AmorError(f"checkpoint has {key} = {meta.get(key)!r}, this environment has {value!r}")
+    check_env_meta(meta, trainer.env, trainer.names)
     _check_optimizer_meta(meta, trainer.optimizer)
     _check_optimizer_state(meta, arrays, trainer.optimizer)
     try:
@@ -137,8 +120,5 @@ def load_trainer_state(trainer: Any, state: Snapshot) -> None:
                 setattr(trainer.feedback, key, torch.from_numpy(arrays[f"feedback.{key}"].copy()))
     except (KeyError, RuntimeError, ValueError) as exc:
         raise AmorError(f"checkpoint does not fit this network configuration: {exc}") from None
-    trainer.iteration_count = int(meta["iteration"])
-    trainer.env_steps = int(meta["env_steps"])
+    load_counters(trainer, meta)
     trainer.learning_rate = float(meta["learning_rate"])
-    trainer.recent_ptr = int(meta["recent_ptr"])
-    trainer.episodes = int(meta["episodes"])
