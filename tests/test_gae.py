@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from amorctl.plugins.backends.torch_cpu.gae import gae
+from amorctl.core.gae import gae as _gae
+
+
+def gae(*args):
+    return _gae(*args, xp=torch)
+
 
 torch.set_num_threads(1)
 

@@ -10,6 +10,7 @@ import torch
 
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import frame_dim
+from amorctl.core.gae import gae
 from amorctl.hlp.config import HlpConfig, load_hlp_preset, merge, to_toml
 from amorctl.hlp.discriminator import (
     Discriminator,
@@ -20,7 +21,6 @@ from amorctl.hlp.discriminator import (
     reward_from_logits,
 )
 from amorctl.hlp.policy import HlpActorCritic, RunningNorm, softmax_weights
-from amorctl.hlp.ppo import gae
 from amorctl.hlp.windows import DatasetWindows, WindowHistory, WindowSpec, observation_slices
 
 
@@ -74,16 +74,16 @@ def test_gae_matches_hand_computation_and_bootstraps_truncation() -> None:
     r = np.array([[1.0], [2.0], [3.0]])
     v = np.array([[0.5], [1.0], [1.5]])
     nv = np.array([[1.0], [4.0], [10.0]])  # step 1 ended truncated in a state worth 4
-    term = np.zeros((3, 1))
-    ended = np.array([[0.0], [1.0], [0.0]])
-    adv, ret = gae(r, v, nv, term, ended, g, lam)
+    term = np.zeros((3, 1), dtype=bool)
+    truncated = np.array([[False], [True], [False]])
+    adv, ret = gae(r, v, nv, term, truncated, g, lam)
     d2 = 3 + g * 10 - 1.5
     d1 = 2 + g * 4 - 1.0
     d0 = 1 + g * 1.0 - 0.5
     want = [d0 + g * lam * d1, d1, d2]
     np.testing.assert_allclose(adv[:, 0], want, rtol=1e-6)
     np.testing.assert_allclose(ret[:, 0], np.array(want) + v[:, 0], rtol=1e-6)
-    adv_t, _ = gae(r, v, nv, np.array([[0.0], [1.0], [0.0]]), ended, g, lam)  # terminated: no bootstrap
+    adv_t, _ = gae(r, v, nv, truncated, term, g, lam)  # terminated instead: no bootstrap
     assert adv_t[1, 0] == pytest.approx(2 - 1.0)
 
 

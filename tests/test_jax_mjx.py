@@ -16,11 +16,11 @@ import jax
 import jax.numpy as jnp
 
 from amorctl.core.config import TrainConfig, override
+from amorctl.core.gae import gae as core_gae
 from amorctl.envs.toy import ToyTradeoffEnv
 from amorctl.plugins.backends.jax_mjx import moppo_math as mm
 from amorctl.plugins.backends.jax_mjx.networks import Networks, arrays_to_params, params_to_arrays
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
-from amorctl.plugins.backends.torch_cpu.gae import gae as torch_gae
 from amorctl.plugins.backends.torch_cpu.networks import modules_to_arrays
 
 torch.set_num_threads(1)
@@ -102,7 +102,7 @@ def test_gae_matches_torch_with_truncation_and_termination() -> None:
     r, v, nv = (rng.normal(size=(T, N, m)).astype(np.float32) for _ in range(3))
     term = rng.random((T, N)) < 0.15
     trunc = (rng.random((T, N)) < 0.15) & ~term
-    ta, tr = torch_gae(*(torch.from_numpy(x) for x in (r, v, nv, term, trunc)), 0.99, 0.95)
+    ta, tr = core_gae(*(torch.from_numpy(x) for x in (r, v, nv, term, trunc)), 0.99, 0.95, xp=torch)
     ja, jr = mm.gae(*(jnp.asarray(x) for x in (r, v, nv, term, trunc)), 0.99, 0.95)
     np.testing.assert_allclose(np.asarray(ja), ta.numpy(), atol=1e-5)
     np.testing.assert_allclose(np.asarray(jr), tr.numpy(), atol=1e-5)

@@ -13,9 +13,9 @@ import torch
 
 from amorctl.core.config import TrainConfig, check_backend_levers, override
 from amorctl.core.errors import AmorError
+from amorctl.core.gae import gae
 from amorctl.envs.toy import ToyTradeoffEnv
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
-from amorctl.plugins.backends.torch_cpu.gae import gae
 from amorctl.plugins.backends.torch_cpu.survival_channel import (
     channel_values,
     channel_weights,
@@ -97,6 +97,7 @@ def test_split_leaves_the_scalarized_advantage_unchanged_without_advantage_scali
         batch.truncated,
         trainer.cfg.gamma,
         trainer.cfg.gae_lambda,
+        xp=torch,
     )
     close = dict(atol=1e-5, rtol=0)
     torch.testing.assert_close(objective_values(batch.advantages), whole_adv.reshape(T * N, 2), **close)

@@ -19,9 +19,10 @@ import torch
 
 from amorctl.core.contracts import Policy, Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.core.gae import gae
 from amorctl.hlp.config import HlpConfig
 from amorctl.hlp.policy import HlpActorCritic
-from amorctl.hlp.ppo import gae, ppo_loss
+from amorctl.hlp.ppo import ppo_loss
 from amorctl.hlp.rewards import RewardSource
 from amorctl.hlp.state import (
     generator_array,
@@ -138,7 +139,9 @@ class HlpTrainer:
             with torch.no_grad():
                 next_values[t] = model.value(model.normalizer(torch.as_tensor(final[:, :-m]))).numpy()
         gamma_k = gamma**k
-        adv, ret = gae(rewards, values, next_values, terminated, ended, gamma_k, cfg.ppo.gae_lambda)
+        term, stop = terminated > 0, ended > 0
+        adv, ret = gae(rewards, values, next_values, term, stop & ~term, gamma_k, cfg.ppo.gae_lambda)
+        adv, ret = adv.astype(np.float32), ret.astype(np.float32)
         collect_s = time.perf_counter() - began
         metrics = self.reward.update(self.rng)
         metrics.update(self._update(hobs, logits, logp, adv, ret, values))

@@ -9,7 +9,7 @@ Per iteration:
    critic ``V(s, c, w)`` gives m values per state. Each env's weights ``w`` (Dirichlet(1) per
    episode, the last m observation entries) are recorded per step. Truncated episodes store
    ``V(final_obs)`` to bootstrap from.
-2. **Returns**: GAE per objective over ``[T, N, m]`` (:func:`gae.gae`).
+2. **Returns**: GAE per objective over ``[T, N, m]`` (:func:`amorctl.core.gae.gae`).
 3. **Update**: ``num_epochs`` passes over shuffled minibatches. The vector advantage is scalarized
    per sample as ``A·w``, normalized with the minibatch's mean and std, and drives the PPO
    clipped surrogate; the value loss is the (optionally clipped) squared error over all m
@@ -52,10 +52,10 @@ from torch import nn
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.core.gae import gae
 from amorctl.core.vecenv import VectorEnv, weight_sampler_of
 from amorctl.plugins.backends.host import EPISODE_WINDOW
 from amorctl.plugins.backends.torch_cpu.batch import Batch
-from amorctl.plugins.backends.torch_cpu.gae import gae
 from amorctl.plugins.backends.torch_cpu.networks import (
     Actor,
     Critic,
@@ -305,6 +305,7 @@ class MOPPOTrainer:
             batch.truncated,
             self.cfg.gamma,
             self.cfg.gae_lambda,
+            xp=torch,
         )
         batch.advantages, batch.returns = advantages.reshape(T * N, C), returns.reshape(T * N, C)
         if self.return_scale is not None:
