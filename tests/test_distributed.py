@@ -112,8 +112,8 @@ def rows(run: Path) -> list[dict[str, str]]:
 def fixed_batch(trainer, seed: int = 7):
     """B samples with actions, log-probs, values, advantages and returns made from ``trainer``'s
     current networks (so the PPO ratio starts at 1), identical wherever it is built."""
+    from amorctl.core.ppo_math import gaussian_log_prob
     from amorctl.plugins.backends.torch_cpu.moppo import Batch
-    from amorctl.plugins.backends.torch_cpu.networks import gaussian_log_prob
 
     g = torch.Generator().manual_seed(seed)
     obs = torch.randn(B, 5, generator=g)
@@ -123,7 +123,7 @@ def fixed_batch(trainer, seed: int = 7):
         means, values = trainer._forward(obs)
         log_std = trainer.actor.log_std.detach().clone()
         actions = means + torch.exp(log_std) * torch.randn(B, 1, generator=g)
-        log_probs = gaussian_log_prob(actions, means, log_std)
+        log_probs = gaussian_log_prob(actions, means, log_std, xp=torch)
     zeros = torch.zeros(1, B, 2)
     return Batch(
         obs=obs, actions=actions, log_probs=log_probs, means=means, values=values, weights=obs[:, 3:],

@@ -15,6 +15,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from amorctl.core.ppo_math import gaussian_log_prob
+
 
 def mlp(sizes: list[int], out: int) -> nn.Sequential:
     """ELU MLP ``sizes[0] -> sizes[1] ... -> out`` (no activation on the output)."""
@@ -91,10 +93,10 @@ class HlpActorCritic(nn.Module):
             self.actor[-1].weight.mul_(0.01)
             self.actor[-1].bias.zero_()
 
-    def dist(self, obs_n: torch.Tensor) -> torch.distributions.Normal:
-        """The Gaussian over logits for normalized observations [N, obs_dim]."""
-        mu = self.actor(obs_n)
-        return torch.distributions.Normal(mu, self.log_std.exp().expand_as(mu))
+    def mean(self, obs_n: torch.Tensor) -> torch.Tensor:
+        """The mean logits [N, m] of the Gaussian over logits (std ``exp(log_std)``) for
+        normalized observations [N, obs_dim]."""
+        return self.actor(obs_n)
 
     def value(self, obs_n: torch.Tensor) -> torch.Tensor:
         """V(s, c) [N] for normalized observations."""
@@ -108,11 +110,12 @@ class HlpActorCritic(nn.Module):
 
         ``deterministic`` uses the mean logits (evaluation, tracing, tuning)."""
         x = self.normalizer(torch.as_tensor(obs, dtype=torch.float32))
-        d = self.dist(x)
-        u = d.mean if deterministic else d.mean + d.stddev * torch.randn(d.mean.shape, generator=generator)
+        mu = self.mean(x)
+        noise = torch.randn(mu.shape, generator=generator)
+        u = mu if deterministic else mu + self.log_std.exp() * noise
         return (
             softmax_weights(u).numpy(),
             u.numpy(),
-            d.log_prob(u).sum(-1).numpy(),
+            gaussian_log_prob(u, mu, self.log_std, xp=torch).numpy(),
             self.value(x).numpy(),
         )

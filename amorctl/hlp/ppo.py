@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from amorctl.core.ppo_math import approx_kl, clipped_surrogate
+
 
 def ppo_loss(
     new_logp: torch.Tensor,
@@ -17,11 +19,11 @@ def ppo_loss(
     entropy_coef: float,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Clipped surrogate + value MSE - entropy bonus over a minibatch [B]; advantages are
-    normalized here. Returns (loss, {"policy", "value", "entropy", "kl", "clip_fraction"})."""
+    normalized here. Returns (loss, {"policy", "value", "entropy", "approx_kl", "clip_fraction"})."""
     adv = (advantages - advantages.mean()) / (advantages.std(unbiased=False) + 1e-8)
     log_ratio = new_logp - old_logp
     ratio = log_ratio.exp()
-    policy = -torch.min(ratio * adv, ratio.clamp(1 - clip, 1 + clip) * adv).mean()
+    policy = clipped_surrogate(adv, ratio, clip, xp=torch).mean()
     value = ((values - returns) ** 2).mean()
     ent = entropy.mean()
     loss = policy + value_coef * value - entropy_coef * ent
@@ -30,7 +32,7 @@ def ppo_loss(
             "policy": float(policy),
             "value": float(value),
             "entropy": float(ent),
-            "kl": float(((ratio - 1) - log_ratio).mean()),
+            "approx_kl": float(approx_kl(ratio, log_ratio).mean()),
             "clip_fraction": float(((ratio - 1).abs() > clip).float().mean()),
         }
     return loss, stats

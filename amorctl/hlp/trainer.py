@@ -20,6 +20,7 @@ import torch
 from amorctl.core.contracts import Policy, Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.gae import gae
+from amorctl.core.ppo_math import gaussian_entropy, gaussian_kl, gaussian_log_prob
 from amorctl.hlp.config import HlpConfig
 from amorctl.hlp.policy import HlpActorCritic
 from amorctl.hlp.ppo import ppo_loss
@@ -181,24 +182,29 @@ class HlpTrainer:
         r = torch.as_tensor(ret.reshape(-1))
         total = x.shape[0]
         size = total // cfg.num_minibatches
+        with torch.no_grad():  # the rollout's policy (the same parameters and normalized inputs)
+            old_mean, old_log_std = self.model.mean(x), self.model.log_std.detach().clone()
         sums: dict[str, float] = {}
         count = 0
         for _ in range(cfg.num_epochs):
             perm = torch.randperm(total, generator=self.gen)
             for b in range(cfg.num_minibatches):
                 idx = perm[b * size : (b + 1) * size]
-                d = self.model.dist(x[idx])
+                mu, log_std = self.model.mean(x[idx]), self.model.log_std
                 loss, stats = ppo_loss(
-                    d.log_prob(u[idx]).sum(-1),
+                    gaussian_log_prob(u[idx], mu, log_std, xp=torch),
                     old[idx],
                     a[idx],
                     self.model.value(x[idx]),
                     r[idx],
-                    d.entropy().sum(-1),
+                    gaussian_entropy(log_std, xp=torch),
                     cfg.clip_coef,
                     cfg.value_coef,
                     cfg.entropy_coef,
                 )
+                with torch.no_grad():  # as MOPPO's: the minibatch's policy against the rollout's
+                    kl = gaussian_kl(old_mean[idx], old_log_std, mu, log_std, xp=torch)
+                stats["kl"] = float(kl.mean())
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.max_grad_norm)
@@ -210,7 +216,8 @@ class HlpTrainer:
         out = {
             f"loss/{k}": v / count for k, v in sums.items() if k in ("policy", "value", "entropy", "total")
         }
-        out["kl"] = sums["kl"] / count
+        out["kl"] = sums["kl"] / count  # analytic, as MOPPO's
+        out["approx_kl"] = sums["approx_kl"] / count
         out["clip_fraction"] = sums["clip_fraction"] / count
         out["logit_std"] = self.model.log_std.exp().mean().item()
         var = float(np.var(ret))

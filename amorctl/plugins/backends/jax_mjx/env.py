@@ -280,7 +280,7 @@ class MjxTrackingEnv:
                 x = normalize(st.obs, norm, clip)
                 mean, value = nets.mean(params, x), nets.values(params, x)
                 action = mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape, mean.dtype)
-                logp = mm.gaussian_log_prob(action, mean, log_std)
+                logp = mm.gaussian_log_prob(action, mean, log_std, xp=jnp)
                 new, out = core.step(st, sel, action)
                 trunc = out.truncated & ~out.terminated
                 final_value = jnp.where(trunc[:, None], value_of(out.final_obs), 0.0)

@@ -15,7 +15,6 @@ M = ceil(B / k) padded minibatch size.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -24,10 +23,15 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from amorctl.core.ppo_math import (
+    adapt_learning_rate,
+    approx_kl,
+    clipped_surrogate,
+    gaussian_entropy,
+    gaussian_kl,
+    gaussian_log_prob,
+)
 from amorctl.plugins.backends.jax_mjx.networks import Networks, Params, normalize
-
-LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate (torch-cpu's)
-LOG_2PI = math.log(2.0 * math.pi)
 
 
 @dataclass(frozen=True)
@@ -104,17 +108,6 @@ def with_learning_rate(opt_state: Any, lr: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------- math
-def gaussian_log_prob(actions: jax.Array, mean: jax.Array, log_std: jax.Array) -> jax.Array:
-    """log N(actions; mean, exp(log_std)^2) summed over A: [B, A] -> [B]."""
-    var = jnp.exp(2.0 * log_std)
-    return jnp.sum(-((actions - mean) ** 2) / (2.0 * var) - log_std - 0.5 * LOG_2PI, axis=-1)
-
-
-def gaussian_entropy(log_std: jax.Array) -> jax.Array:
-    """Entropy of the diagonal Gaussian: [A] -> scalar."""
-    return jnp.sum(0.5 + 0.5 * LOG_2PI + log_std)
-
-
 def gae(
     rewards: jax.Array,
     values: jax.Array,
@@ -162,7 +155,7 @@ def minibatch_loss(
     mean = nets.mean(params, x)
     values = nets.values(params, x)
     log_std = params["actor"]["log_std"]
-    log_prob = gaussian_log_prob(mb["actions"], mean, log_std)
+    log_prob = gaussian_log_prob(mb["actions"], mean, log_std, xp=jnp)
     log_ratio = log_prob - mb["log_probs"]
     ratio = jnp.exp(log_ratio)
 
@@ -171,8 +164,7 @@ def minibatch_loss(
     adv_std = jnp.sqrt(avg((adv - adv_mean) ** 2))
     adv = (adv - adv_mean) / (adv_std + 1e-8)
     clip = cfg.clip_coef
-    surrogate = jnp.maximum(-adv * ratio, -adv * jnp.clip(ratio, 1 - clip, 1 + clip))
-    policy_loss = avg(surrogate)
+    policy_loss = avg(clipped_surrogate(adv, ratio, clip, xp=jnp))
 
     returns, old_values = mb["returns"], mb["values"]
     value_err = (values - returns) ** 2
@@ -181,16 +173,11 @@ def minibatch_loss(
         value_err = jnp.maximum(value_err, (clipped - returns) ** 2)
     value_loss = 0.5 * avg(jnp.mean(value_err, axis=-1))
 
-    entropy = gaussian_entropy(log_std)
+    entropy = gaussian_entropy(log_std, xp=jnp)
     loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy
 
     sg = jax.lax.stop_gradient
-    old_log_std = mb["old_log_std"]
-    old_std, new_std = jnp.exp(old_log_std), jnp.exp(sg(log_std))
-    kl_each = jnp.sum(
-        sg(log_std) - old_log_std + (old_std**2 + (mb["means"] - sg(mean)) ** 2) / (2 * new_std**2) - 0.5,
-        axis=-1,
-    )
+    kl_each = gaussian_kl(mb["means"], mb["old_log_std"], sg(mean), sg(log_std), xp=jnp)
     ratio_, log_ratio_ = sg(ratio), sg(log_ratio)
     stats = {
         "loss/total": sg(loss),
@@ -198,7 +185,7 @@ def minibatch_loss(
         "loss/value": sg(value_loss),
         "loss/entropy": sg(entropy),
         "kl": avg(kl_each),
-        "approx_kl": avg((ratio_ - 1) - log_ratio_),
+        "approx_kl": avg(approx_kl(ratio_, log_ratio_)),
         "clip_fraction": avg((jnp.abs(ratio_ - 1) > clip).astype(jnp.float32)),
     }
     return loss, stats
@@ -222,13 +209,6 @@ def clipped_grads(
         "critic": clip_by_norm(grads["critic"], cfg.max_grad_norm),
     }
     return grads, stats
-
-
-def adapt_learning_rate(lr: jax.Array, kl: jax.Array, desired_kl: float) -> jax.Array:
-    """rsl_rl's rule: / 1.5 above 2·desired_kl, × 1.5 below desired_kl / 2 (bounded)."""
-    down = jnp.maximum(LR_MIN, lr / 1.5)
-    up = jnp.minimum(LR_MAX, lr * 1.5)
-    return jnp.where(kl > 2.0 * desired_kl, down, jnp.where((kl > 0) & (kl < 0.5 * desired_kl), up, lr))
 
 
 def minibatch_layout(size: int, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -286,7 +266,7 @@ def update(
         params = optax.apply_updates(st.params, updates)
         if cfg.adaptive_lr:
             opt_state = with_learning_rate(
-                opt_state, adapt_learning_rate(learning_rate(opt_state), stats["kl"], cfg.desired_kl)
+                opt_state, adapt_learning_rate(learning_rate(opt_state), stats["kl"], cfg.desired_kl, xp=jnp)
             )
         return TrainState(params, opt_state), stats
 

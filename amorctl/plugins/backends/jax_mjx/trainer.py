@@ -61,7 +61,7 @@ def policy_step(
     mean, value = nets.mean(params, x), nets.values(params, x)
     log_std = params["actor"]["log_std"]
     action = mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape, mean.dtype)
-    return action, mean, value, mm.gaussian_log_prob(action, mean, log_std)
+    return action, mean, value, mm.gaussian_log_prob(action, mean, log_std, xp=jnp)
 
 
 def _learn(

@@ -53,6 +53,14 @@ from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.gae import gae
+from amorctl.core.ppo_math import (
+    adapt_learning_rate,
+    approx_kl,
+    clipped_surrogate,
+    gaussian_entropy,
+    gaussian_kl,
+    gaussian_log_prob,
+)
 from amorctl.core.vecenv import VectorEnv, weight_sampler_of
 from amorctl.plugins.backends.host import EPISODE_WINDOW
 from amorctl.plugins.backends.torch_cpu.batch import Batch
@@ -60,8 +68,6 @@ from amorctl.plugins.backends.torch_cpu.networks import (
     Actor,
     Critic,
     RunningNormalizer,
-    gaussian_entropy,
-    gaussian_log_prob,
 )
 from amorctl.plugins.backends.torch_cpu.replicas import Replicas
 from amorctl.plugins.backends.torch_cpu.return_scale import ReturnScale
@@ -77,7 +83,6 @@ from amorctl.plugins.backends.torch_cpu.weight_feedback import WeightFeedback
 
 __all__ = ["Batch", "MOPPOTrainer", "Replicas"]
 
-LR_MIN, LR_MAX = 1e-6, 1e-2  # bounds of the adaptive learning rate
 CHECK_EVERY = 10  # data-parallel: compare the ranks' parameters every this many iterations
 
 
@@ -245,7 +250,7 @@ class MOPPOTrainer:
             obs, rewards, terminated, truncated, info = self.env.step(action.numpy())
             t2 = time.perf_counter()
             obs_buf[t], act_buf[t], mean_buf[t], val_buf[t], w_buf[t] = self.obs, action, mean, value, weights
-            logp_buf[t] = gaussian_log_prob(action, mean, self.actor.log_std)
+            logp_buf[t] = gaussian_log_prob(action, mean, self.actor.log_std, xp=torch)
             rew_buf[t] = torch.as_tensor(rewards, dtype=torch.float32)
             term_buf[t] = torch.as_tensor(terminated, dtype=torch.bool)
             trunc_buf[t] = torch.as_tensor(truncated, dtype=torch.bool) & ~term_buf[t]
@@ -328,14 +333,14 @@ class MOPPOTrainer:
         mean, values = self._forward(batch.obs[idx])
         assert values is not None
         log_std = self.actor.log_std
-        log_prob = gaussian_log_prob(batch.actions[idx], mean, log_std)
+        log_prob = gaussian_log_prob(batch.actions[idx], mean, log_std, xp=torch)
         log_ratio = log_prob - batch.log_probs[idx]
         ratio = torch.exp(log_ratio)
 
         adv = self.scalarized_advantage(batch, idx)
         scale = self.return_scale
         clip = self.cfg.clip_coef
-        policy_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - clip, 1 + clip)).mean()
+        policy_loss = clipped_surrogate(adv, ratio, clip, xp=torch).mean()
 
         # value loss over all C channels (in units of each objective's return std when scaled)
         returns, old_values = batch.returns[idx], batch.values[idx]
@@ -352,28 +357,18 @@ class MOPPOTrainer:
                 value_err = torch.max(value_err, ((clipped - returns) / sigma) ** 2)
         value_loss = 0.5 * value_err.mean()
 
-        entropy = gaussian_entropy(log_std)
+        entropy = gaussian_entropy(log_std, xp=torch)
         loss = policy_loss + self.cfg.value_coef * value_loss - self.cfg.entropy_coef * entropy
 
         with torch.no_grad():
-            old_std, new_std = torch.exp(batch.old_log_std), torch.exp(log_std)
-            kl = (
-                (
-                    log_std
-                    - batch.old_log_std
-                    + (old_std**2 + (batch.means[idx] - mean) ** 2) / (2 * new_std**2)
-                    - 0.5
-                )
-                .sum(-1)
-                .mean()
-            )
+            kl = gaussian_kl(batch.means[idx], batch.old_log_std, mean, log_std, xp=torch).mean()
             stats = {
                 "loss/total": loss.detach(),
                 "loss/policy": policy_loss.detach(),
                 "loss/value": value_loss.detach(),
                 "loss/entropy": entropy.detach(),
                 "kl": kl,
-                "approx_kl": ((ratio - 1) - log_ratio).mean(),
+                "approx_kl": approx_kl(ratio, log_ratio).mean(),
                 "clip_fraction": ((ratio - 1).abs() > clip).float().mean(),
             }
         return loss, stats
@@ -436,10 +431,7 @@ class MOPPOTrainer:
 
     def _adapt_learning_rate(self, kl: float) -> None:
         """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
-        if kl > 2.0 * self.cfg.desired_kl:
-            self.learning_rate = max(LR_MIN, self.learning_rate / 1.5)
-        elif 0.0 < kl < 0.5 * self.cfg.desired_kl:
-            self.learning_rate = min(LR_MAX, self.learning_rate * 1.5)
+        self.learning_rate = float(adapt_learning_rate(self.learning_rate, kl, self.cfg.desired_kl))
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate
 

@@ -57,17 +57,6 @@ class Critic(nn.Module):
         return self.net(obs)
 
 
-def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
-    """log N(actions; mean, exp(log_std)^2) summed over the action dim: [B, A] -> [B]."""
-    var = torch.exp(2.0 * log_std)
-    return (-((actions - mean) ** 2) / (2.0 * var) - log_std - 0.5 * math.log(2.0 * math.pi)).sum(-1)
-
-
-def gaussian_entropy(log_std: torch.Tensor) -> torch.Tensor:
-    """Entropy of the diagonal Gaussian (independent of the mean): [A] -> scalar."""
-    return (0.5 + 0.5 * math.log(2.0 * math.pi) + log_std).sum()
-
-
 class RunningNormalizer(nn.Module):
     """Running mean/std of observations (parallel Welford / Chan update), saved with the policy.
 
