@@ -644,6 +644,17 @@ def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
     def lost_model(d: Path) -> None:
         (d / "model" / "biped20.xml").unlink()
 
+    def swapped_layout(d: Path) -> None:  # two terms exchanged, in both copies of the metadata
+        meta = json.loads((d / "deploy.json").read_text())
+        layout = meta["observation_layout"]
+        layout["proprio"], layout["ref_frame"] = layout["ref_frame"], layout["proprio"]
+        (d / "deploy.json").write_text(json.dumps(meta))
+        model = onnx.load(str(d / ONNX_FILE))
+        for p in model.metadata_props:
+            if p.key == "observation_layout":
+                p.value = json.dumps(layout)
+        onnx.save(model, str(d / ONNX_FILE))
+
     for name, damage, expect in (
         ("hash", other_hash, "model_sha256"),
         (
@@ -654,6 +665,7 @@ def test_bad_inputs_fail_with_one_error_line_and_write_nothing(
         ("onnx", cut_onnx, "onnxruntime cannot load"),
         ("json", bad_json, "not valid JSON"),
         ("edited", edited_json, "differs from"),
+        ("layout", swapped_layout, "is not the layout of this amorctl's tracking envs"),
     ):
         bad = broken(name, damage)
         log = tmp_path / f"{name}.mcap"

@@ -54,3 +54,17 @@ def test_no_reference_to_files_outside_the_repository(doc: Path) -> None:
     text = doc.read_text()
     for needle in ("../shared", "DESIGN.md", "RECIPES.md", "PERFORMANCE.md", "amor-paper.tex"):
         assert needle not in text, f"{doc.relative_to(ROOT)} refers to {needle!r} (not in the repository)"
+
+
+def test_the_observation_table_is_the_one_layout_definition() -> None:
+    """docs/observations.md lists the observation's terms and sizes in the order and with the
+    sizes of amorctl.core.observation.OBSERVATION_TERMS, which every tracking env builds from."""
+    from amorctl.core.observation import OBSERVATION_TERMS, observation_layout
+
+    text = (ROOT / "docs" / "observations.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\| `(\w+)` \| ([^|]+) \|", text, flags=re.MULTILINE)
+    assert [(name, size.strip()) for name, size in rows] == list(OBSERVATION_TERMS)
+    layout = observation_layout(101, 20, 16, (5, 25), 7)  # biped20, L = 16, two future frames
+    assert list(layout) == [name for name, _ in OBSERVATION_TERMS]
+    assert [s.stop - s.start for s in layout.values()] == [101, 40, 101, 16, 202, 7]
+    assert layout["weights"].stop == 101 + 40 + 101 + 16 + 202 + 7  # contiguous, w last

@@ -27,7 +27,8 @@ import mujoco
 import numpy as np
 
 from amorctl.core.errors import AmorError
-from amorctl.core.frame_layout import STATE_ARRAYS
+from amorctl.core.frame_layout import STATE_ARRAYS, frame_dim
+from amorctl.core.observation import observation_layout
 from amorctl.core.specs import ActuatorModel, CharacterSpec, JointSpec
 
 FORMAT = "amorctl-deploy/1"
@@ -416,4 +417,24 @@ def read_bundle(path: str | Path, *, check_model: bool = True) -> Bundle:
                     f"it runs ({compiled[:12]}…, {mjcf}): its model files were altered, or (an old bundle) "
                     f"the installed character {meta['character']} changed since export; export it again"
                 )
+    if spec is not None and motions is not None:
+        _check_layout(path, meta, spec, motions)
     return Bundle(path=path, meta=meta, session=session, motions=motions, spec=spec)
+
+
+def _check_layout(path: Path, meta: dict[str, Any], spec: CharacterSpec, motions: Motions) -> None:
+    """Refuse a bundle whose observation layout is not the one the tracking envs build
+    (:func:`amorctl.core.observation.observation_layout`) for its character, latents, future
+    frames and objectives: the runtime assembles observations by that one definition."""
+    joints, effectors = spec.num_joints, len(spec.end_effectors)
+    offsets = meta["context"]["future_frame_offsets"]
+    want = observation_layout(
+        frame_dim(joints, effectors), joints, int(motions.z.shape[1]), offsets, len(meta["objectives"])
+    )
+    have = {k: tuple(v) for k, v in meta["observation_layout"].items()}
+    expected = {k: (s.start, s.stop) for k, s in want.items()}
+    if have != expected:
+        raise AmorError(
+            f"{path / META_FILE}: observation_layout {have} is not the layout of this amorctl's tracking "
+            f"envs ({expected}); export the bundle again with this version"
+        )

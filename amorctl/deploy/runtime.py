@@ -233,8 +233,6 @@ class Runtime:
         }
         obs = np.zeros(self.obs_dim, dtype=np.float32)
         for name, (a, b) in self.layout.items():
-            if name not in parts:
-                raise AmorError(f"{self.bundle.path}: observation part {name!r} is unknown to the runtime")
             obs[a:b] = parts[name]
         return obs
 

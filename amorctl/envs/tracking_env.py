@@ -23,6 +23,7 @@ from amorctl.core.contracts import Snapshot, survival_bonus_of
 from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_dim, frame_features, split_frame
+from amorctl.core.observation import observation_layout
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
@@ -153,19 +154,8 @@ class TrackingEnv:
         jn = self.num_joints
         d = frame_dim(jn, self.num_ee)
         self.frame_dim = d
-        self.obs_layout: dict[str, slice] = {}
-        o = 0
-        for name, size in (
-            ("proprio", d),
-            ("prev_targets", 2 * jn),
-            ("ref_frame", d),
-            ("latent", latent_dim),
-            ("future_frames", d * len(self.future_frames)),
-            ("weights", m),
-        ):
-            self.obs_layout[name] = slice(o, o + size)
-            o += size
-        self.obs_dim = o
+        self.obs_layout = observation_layout(d, jn, latent_dim, self.future_frames, m)
+        self.obs_dim = self.obs_layout["weights"].stop
         self.action_dim = jn
 
     def _init_state(self, seed: int | None) -> None:

@@ -21,6 +21,7 @@ from amorctl.core.contracts import Snapshot, survival_bonus_of
 from amorctl.core.env_random import Seed
 from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import frame_dim
+from amorctl.core.observation import observation_layout
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.motion.clips import MotionLibrary
@@ -101,19 +102,8 @@ class MjxTrackingEnv:
         self.fall_drop, self.future_frames = self.core.fall_drop, self.core.future_frames
         jn, e = ch.num_joints, len(ch.end_effectors)
         d = frame_dim(jn, e)
-        self.obs_layout: dict[str, slice] = {}
-        o = 0
-        for name, size in (
-            ("proprio", d),
-            ("prev_targets", 2 * jn),
-            ("ref_frame", d),
-            ("latent", library.latent_dim),
-            ("future_frames", d * len(self.core.future_frames)),
-            ("weights", m),
-        ):
-            self.obs_layout[name] = slice(o, o + size)
-            o += size
-        self.obs_dim, self.action_dim = o, jn
+        self.obs_layout = observation_layout(d, jn, library.latent_dim, self.core.future_frames, m)
+        self.obs_dim, self.action_dim = self.obs_layout["weights"].stop, jn
         self.all_valid_clips = np.flatnonzero(library.lengths >= 2)
         if len(self.all_valid_clips) == 0:
             raise AmorError("motion library has no clip with at least 2 frames")
