@@ -37,12 +37,7 @@ EPISODE_STATS: tuple[str, ...] = (
     "recent_return", "recent_scalar", "recent_length", "recent_survived",
 )  # fmt: skip
 #: Checkpoint metadata -> trainer attribute of the counters every MOPPO trainer keeps.
-COUNTERS: dict[str, str] = {
-    "iteration": "iteration_count",
-    "env_steps": "env_steps",
-    "recent_ptr": "recent_ptr",
-    "episodes": "episodes",
-}
+COUNTERS: dict[str, str] = {"iteration": "iteration_count", "env_steps": "env_steps"}
 
 
 def load_library(character: str, dataset: str | Path | None) -> Any:

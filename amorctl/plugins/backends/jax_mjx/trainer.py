@@ -39,7 +39,8 @@ from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.vecenv import VectorEnv, has_fused_rollout
-from amorctl.plugins.backends.host import EPISODE_STATS, EPISODE_WINDOW, check_env_meta, load_counters
+from amorctl.plugins.backends.episode_window import EpisodeWindow
+from amorctl.plugins.backends.host import check_env_meta, load_counters
 from amorctl.plugins.backends.jax_mjx import devices
 from amorctl.plugins.backends.jax_mjx import moppo_math as mm
 from amorctl.plugins.backends.jax_mjx.networks import (
@@ -137,15 +138,7 @@ class JaxMOPPOTrainer:
         self.obs = np.asarray(obs, dtype=np.float32)  # [N, D]
         if ppo.normalize_obs:
             self.normalizer.update(self.obs)
-        self.ep_return = np.zeros((n, m))
-        self.ep_scalar = np.zeros(n)
-        self.ep_length = np.zeros(n, dtype=np.int64)
-        self.recent_return = np.full((EPISODE_WINDOW, m), np.nan)
-        self.recent_scalar = np.full(EPISODE_WINDOW, np.nan)
-        self.recent_length = np.full(EPISODE_WINDOW, np.nan)
-        self.recent_survived = np.full(EPISODE_WINDOW, np.nan)
-        self.recent_ptr = 0
-        self.episodes = 0
+        self.window = EpisodeWindow(n, m)  # running episode sums, the last finished episodes
 
     # ------------------------------------------------------------------ small API
     @property
@@ -169,9 +162,7 @@ class JaxMOPPOTrainer:
         """Restart every env episode with ``seed``; running episode sums start from zero."""
         obs, _ = self.env.reset(seed=seed)
         self.obs = np.asarray(obs, dtype=np.float32)
-        self.ep_return[:] = 0.0
-        self.ep_scalar[:] = 0.0
-        self.ep_length[:] = 0
+        self.window.restart(self.env.num_envs)
 
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         """Actions [N, A] for raw observations [N, D] (the Gaussian mean when deterministic)."""
@@ -223,7 +214,7 @@ class JaxMOPPOTrainer:
                 ("w", weights),
             ):
                 bufs[name].append(value_t)
-            self._track_episodes(rewards, weights, term_buf[t], trunc_buf[t])
+            self.window.record(rewards, weights, term_buf[t], trunc_buf[t])
             self.obs = np.asarray(next_obs, dtype=np.float32)
             t_env += t2 - t1
             t_policy += time.perf_counter() - t2 + t1 - t0
@@ -260,32 +251,9 @@ class JaxMOPPOTrainer:
         terminated, truncated = devices.to_host(batch.terminated), devices.to_host(batch.truncated)
         elapsed = time.perf_counter() - t0
         for t in range(rewards.shape[0]):
-            self._track_episodes(rewards[t], weights[t], terminated[t], truncated[t])
+            self.window.record(rewards[t], weights[t], terminated[t], truncated[t])
         self.obs = devices.to_host(obs).astype(np.float32)
         return batch, {"env": elapsed, "policy": 0.0}
-
-    def _track_episodes(
-        self, rewards: np.ndarray, weights: np.ndarray, terminated: np.ndarray, truncated: np.ndarray
-    ) -> None:
-        """Accumulate undiscounted per-objective episode returns; log the episodes that ended."""
-        rewards = np.asarray(rewards, np.float64)
-        self.ep_return += rewards
-        self.ep_scalar += (rewards * np.asarray(weights, np.float64)).sum(-1)
-        self.ep_length += 1
-        ended = terminated | truncated
-        k = int(ended.sum())
-        if k == 0:
-            return
-        slots = (self.recent_ptr + np.arange(k)) % EPISODE_WINDOW
-        self.recent_return[slots] = self.ep_return[ended]
-        self.recent_scalar[slots] = self.ep_scalar[ended]
-        self.recent_length[slots] = self.ep_length[ended]
-        self.recent_survived[slots] = (~terminated[ended]).astype(np.float64)
-        self.recent_ptr = int((self.recent_ptr + k) % EPISODE_WINDOW)
-        self.episodes += k
-        self.ep_return[ended] = 0.0
-        self.ep_scalar[ended] = 0.0
-        self.ep_length[ended] = 0
 
     # ------------------------------------------------------------------ one iteration
     def iteration(self) -> dict[str, float]:
@@ -329,16 +297,10 @@ class JaxMOPPOTrainer:
             metrics[key] = float(stats[key])
         metrics["learning_rate"] = self.learning_rate
         metrics["action_std"] = float(np.exp(np.asarray(self.params["actor"]["log_std"])).mean())
-        filled = ~np.isnan(self.recent_length)
-        has = bool(filled.any())
+        metrics.update(self.window.metrics(self.names))
         for i, name in enumerate(self.names):
-            metrics[f"return/{name}"] = float(self.recent_return[filled, i].mean()) if has else float("nan")
             metrics[f"reward/{name}"] = float(stats["mean_reward"][i])
             metrics[f"explained_variance/{name}"] = float(stats["explained_variance"][i])
-        metrics["return/scalarized"] = float(self.recent_scalar[filled].mean()) if has else float("nan")
-        metrics["episode/length"] = float(self.recent_length[filled].mean()) if has else float("nan")
-        metrics["episode/survival"] = float(self.recent_survived[filled].mean()) if has else float("nan")
-        metrics["episodes"] = float(self.episodes)
         return metrics
 
     # ------------------------------------------------------------------ checkpoints
@@ -351,16 +313,15 @@ class JaxMOPPOTrainer:
             arrays[f"optimizer.{i}"] = np.asarray(leaf).copy()
         arrays["rng.jax"] = np.asarray(jax.device_get(self.key)).copy()
         arrays["obs"] = self.obs.copy()
-        for key in EPISODE_STATS:
-            arrays[f"episodes.{key}"] = np.asarray(getattr(self, key)).copy()
+        window_arrays, window_meta = self.window.state()
+        arrays.update(window_arrays)
         meta: dict[str, Any] = {
             "iteration": self.iteration_count,
             "env_steps": self.env_steps,
             "learning_rate": self.learning_rate,
             "optimizer": "optax.adam (inject_hyperparams)",
             "optimizer_leaves": len(leaves),
-            "recent_ptr": self.recent_ptr,
-            "episodes": self.episodes,
+            **window_meta,
             "obs_dim": self.env.obs_dim,
             "action_dim": self.env.action_dim,
             "objectives": list(self.names),
@@ -395,8 +356,7 @@ class JaxMOPPOTrainer:
             opt_state = jax.tree_util.tree_unflatten(treedef, leaves)
             self.key = jnp.asarray(arrays["rng.jax"])
             self.obs = np.asarray(arrays["obs"], np.float32).copy()
-            for key in EPISODE_STATS:
-                setattr(self, key, np.asarray(arrays[f"episodes.{key}"]).copy())
+            self.window.load_state(arrays, meta)
         except KeyError as exc:
             raise AmorError(f"checkpoint does not fit this network configuration: missing {exc}") from None
         self.state = devices.replicate(self.mesh, mm.TrainState(params, opt_state))

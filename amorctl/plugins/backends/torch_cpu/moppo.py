@@ -62,7 +62,7 @@ from amorctl.core.ppo_math import (
     gaussian_log_prob,
 )
 from amorctl.core.vecenv import VectorEnv, weight_sampler_of
-from amorctl.plugins.backends.host import EPISODE_WINDOW
+from amorctl.plugins.backends.episode_window import EpisodeWindow
 from amorctl.plugins.backends.torch_cpu.batch import Batch
 from amorctl.plugins.backends.torch_cpu.networks import (
     Actor,
@@ -77,7 +77,7 @@ from amorctl.plugins.backends.torch_cpu.survival_channel import (
     objective_values,
     split_rewards,
 )
-from amorctl.plugins.backends.torch_cpu.trainer_metrics import local_metrics, record_episodes, reduced_metrics
+from amorctl.plugins.backends.torch_cpu.trainer_metrics import local_metrics, reduced_metrics
 from amorctl.plugins.backends.torch_cpu.trainer_state import load_trainer_state, trainer_state
 from amorctl.plugins.backends.torch_cpu.weight_feedback import WeightFeedback
 
@@ -136,15 +136,7 @@ class MOPPOTrainer:
         if ppo.normalize_obs:
             self._update_normalizer(self.obs)  # first estimate from the reset states
         n, m = env.num_envs, self.num_objectives
-        self.ep_return = torch.zeros(n, m, dtype=torch.float64)  # running per-objective sums
-        self.ep_scalar = torch.zeros(n, dtype=torch.float64)  # running sum of r·w
-        self.ep_length = torch.zeros(n, dtype=torch.int64)
-        self.recent_return = torch.full((EPISODE_WINDOW, m), float("nan"), dtype=torch.float64)
-        self.recent_scalar = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
-        self.recent_length = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
-        self.recent_survived = torch.full((EPISODE_WINDOW,), float("nan"), dtype=torch.float64)
-        self.recent_ptr = 0
-        self.episodes = 0
+        self.window = EpisodeWindow(n, m)  # running episode sums, the last finished episodes
         # the levers (docs/moppo.md, Levers): per-objective return scaling, adaptive weight sampling
         norm = ppo.return_norm
         channels = len(self.channel_names)
@@ -158,10 +150,8 @@ class MOPPOTrainer:
         """Restart every env episode with ``seed``; running episode sums start from zero."""
         obs, _ = self.env.reset(seed=seed)
         self.obs = torch.tensor(obs, dtype=torch.float32)
-        n, m = self.env.num_envs, self.num_objectives  # sized anew: a resume may change N per rank
-        self.ep_return = torch.zeros(n, m, dtype=torch.float64)
-        self.ep_scalar = torch.zeros(n, dtype=torch.float64)
-        self.ep_length = torch.zeros(n, dtype=torch.int64)
+        n = self.env.num_envs  # sized anew: a resume may change N per rank
+        self.window.restart(n)
         if self.feedback is not None:
             self.feedback.reset(n)
         if self.replicas is not None:  # another world size restarts: one fresh noise stream per rank
@@ -258,7 +248,7 @@ class MOPPOTrainer:
                 final = torch.as_tensor(info["final_obs"], dtype=torch.float32)[trunc_buf[t]]
                 _, final_values = self._forward(final)
                 next_val_buf[t][trunc_buf[t]] = final_values
-            record_episodes(self, rew_buf[t], weights, term_buf[t], trunc_buf[t])
+            self.window.record(rew_buf[t].numpy(), weights.numpy(), term_buf[t].numpy(), trunc_buf[t].numpy())
             if self.feedback is not None:
                 self.feedback.step(
                     weights,

@@ -10,7 +10,7 @@ import torch
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.optimizer_state import DAMAGED, check_param_groups, check_state, number_in
-from amorctl.plugins.backends.host import EPISODE_STATS, check_env_meta, load_counters
+from amorctl.plugins.backends.host import check_env_meta, load_counters
 from amorctl.plugins.backends.torch_cpu.networks import load_modules, modules_to_arrays
 from amorctl.plugins.backends.torch_cpu.weight_feedback import ARRAYS as FEEDBACK_ARRAYS
 
@@ -27,8 +27,8 @@ def trainer_state(trainer: Any) -> Snapshot:
             arrays[f"optimizer.{index}.{key}"] = torch.as_tensor(tensor).numpy().copy()
     arrays["rng.torch"] = trainer.generator.get_state().numpy().copy()
     arrays["obs"] = trainer.obs.numpy().copy()
-    for key in EPISODE_STATS:
-        arrays[f"episodes.{key}"] = getattr(trainer, key).numpy().copy()
+    window_arrays, window_meta = trainer.window.state()
+    arrays.update(window_arrays)
     _lever_arrays(trainer, arrays)
     meta = {
         "iteration": trainer.iteration_count,
@@ -36,8 +36,7 @@ def trainer_state(trainer: Any) -> Snapshot:
         "learning_rate": trainer.learning_rate,
         "optimizer_param_groups": optim["param_groups"],
         "optimizer_state_keys": {str(i): sorted(s) for i, s in optim["state"].items()},
-        "recent_ptr": trainer.recent_ptr,
-        "episodes": trainer.episodes,
+        **window_meta,
         "obs_dim": trainer.env.obs_dim,
         "action_dim": trainer.env.action_dim,
         "objectives": list(trainer.names),
@@ -109,8 +108,7 @@ def load_trainer_state(trainer: Any, state: Snapshot) -> None:
         )
         trainer.generator.set_state(torch.from_numpy(arrays["rng.torch"].copy()))
         trainer.obs = torch.from_numpy(arrays["obs"].copy())
-        for key in EPISODE_STATS:
-            setattr(trainer, key, torch.from_numpy(arrays[f"episodes.{key}"].copy()))
+        trainer.window.load_state(arrays, meta)
         if trainer.return_scale is not None:
             keys = trainer.return_scale.state()
             saved = {k: torch.from_numpy(arrays[f"return_scale.{k}"].copy()) for k in keys}
