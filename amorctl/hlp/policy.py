@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from amorctl.core.ppo_math import gaussian_log_prob
+from amorctl.core.running_moments import fold_moments
 
 
 def mlp(sizes: list[int], out: int) -> nn.Sequential:
@@ -44,12 +45,12 @@ class RunningNorm(nn.Module):
         n = x.shape[0]
         if n == 0:
             return
-        mean, var = x.mean(0), x.var(0, unbiased=False)
-        total = self.count + n
-        delta = mean - self.mean
-        self.mean += delta * n / total
-        self.var.copy_((self.var * self.count + var * n + delta**2 * self.count * n / total) / total)
-        self.count.copy_(total)
+        mean, var, count = fold_moments(
+            self.mean, self.var, self.count, x.mean(0), x.var(0, unbiased=False), n
+        )
+        self.mean.copy_(mean)
+        self.var.copy_(var)
+        self.count.copy_(count)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         std = torch.sqrt(self.var + self.eps).to(x.dtype)

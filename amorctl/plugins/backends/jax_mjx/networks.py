@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from amorctl.core.errors import AmorError
+from amorctl.core.running_moments import fold_moments
 from amorctl.plugins.backends.host import LOG_STD, linear_param_name
 
 Params = dict[str, Any]
@@ -106,11 +107,8 @@ class HostNormalizer:
             return
         batch_mean = np.asarray(batch_mean, np.float64)
         batch_var = np.asarray(batch_var, np.float64)
-        total = self.count + batch_count
-        delta = batch_mean - self.mean
-        new_mean = self.mean + delta * batch_count / total
-        m2 = self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total
-        self.mean, self.var, self.count = new_mean, m2 / total, np.asarray(total, np.float64)
+        mean, var, count = fold_moments(self.mean, self.var, self.count, batch_mean, batch_var, batch_count)
+        self.mean, self.var, self.count = mean, var, np.asarray(count, np.float64)
 
     def update(self, x: np.ndarray) -> None:
         """Fold raw observations x [B, D] (float64 moments, as torch-cpu)."""

@@ -13,6 +13,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from amorctl.core.running_moments import fold_moments
+
 
 def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float) -> nn.Sequential:
     """ELU MLP ``in_dim -> hidden... -> out_dim``, orthogonal init (gain sqrt 2), zero biases."""
@@ -87,13 +89,10 @@ class RunningNormalizer(nn.Module):
     def fold(self, batch_mean: torch.Tensor, batch_var: torch.Tensor, batch_count: float) -> None:
         """Fold a batch's float64 mean [D], population variance [D] and size into the statistics
         (data-parallel training computes them over all ranks' batches)."""
-        total = self.count + batch_count
-        delta = batch_mean - self.mean
-        new_mean = self.mean + delta * batch_count / total
-        m2 = self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total
-        self.mean.copy_(new_mean)
-        self.var.copy_(m2 / total)
-        self.count.copy_(total)
+        mean, var, count = fold_moments(self.mean, self.var, self.count, batch_mean, batch_var, batch_count)
+        self.mean.copy_(mean)
+        self.var.copy_(var)
+        self.count.copy_(count)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         std = (torch.sqrt(self.var) + self.eps).to(torch.float32)
