@@ -11,6 +11,7 @@ nq = simulator position size.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
     from amorctl.envs.tracking_env import TrackingEnv
 
 
-class TrackingViewBase:
+class TrackingViewBase(ABC):
     """What every backend's view reads alike from its env: the facts fixed for the env's life
     (character, control period, clips, joints, observation layout) and the current weights. A
     backend's view subclasses it and adds ``model`` and the simulated state.
@@ -77,11 +78,43 @@ class TrackingViewBase:
         """Named ``(start, stop)`` slices of the observation (docs/observations.md)."""
         return self._layout
 
+    def reference_joint_pos(self, frames: np.ndarray) -> np.ndarray:
+        """[..., J] reference joint angles (rad) of library ``frames`` [...]."""
+        return np.array(self._env.library.joint_pos[np.asarray(frames, dtype=np.int64)])
+
+    def reference_qpos(self, frames: np.ndarray) -> np.ndarray:
+        """[T, nq] float64 reference poses of library ``frames`` [T]: root and joints from the
+        library, every other entry from the model's initial state. The root quaternion is left as
+        stored (MuJoCo's kinematics normalizes it)."""
+        template, r, joint_qpos = self._pose_template()
+        lib = self._env.library
+        f = np.asarray(frames, dtype=np.int64).reshape(-1)
+        q = np.tile(np.asarray(template, np.float64), (len(f), 1))
+        q[:, r : r + 3] = lib.root_pos[f]
+        q[:, r + 3 : r + 7] = lib.root_quat[f]
+        q[:, joint_qpos] = lib.joint_pos[f]
+        return q
+
+    @abstractmethod
+    def _pose_template(self) -> tuple[np.ndarray, int, np.ndarray]:
+        """(the model's initial qpos [nq], the root's qpos address, the joints' [J])."""
+
     # --- the current state ---------------------------------------------------------------------
     @property
     def weights(self) -> np.ndarray:
         """[N, m] float32 weights of each env's current episode."""
         return self._env.weights
+
+    # --- the one control -----------------------------------------------------------------------
+    def select_clips(
+        self,
+        clips: Sequence[int] | None = None,
+        env_clips: np.ndarray | None = None,
+        from_start: bool = False,
+    ) -> None:
+        """Restrict the clips episodes draw, or pin one per env, from the next reset on
+        (:meth:`TrackingEnv.select_clips`)."""
+        self._env.select_clips(clips, env_clips, from_start)
 
 
 class TrackingEnvView(TrackingViewBase):
@@ -129,30 +162,6 @@ class TrackingEnvView(TrackingViewBase):
         """[..., Df] heading-frame frame vectors of library ``frames`` [...] (what rewards compare)."""
         return np.array(self._env.ref_frames[np.asarray(frames, dtype=np.int64)])
 
-    def reference_joint_pos(self, frames: np.ndarray) -> np.ndarray:
-        """[..., J] reference joint angles (rad) of library ``frames`` [...]."""
-        return np.array(self._env.library.joint_pos[np.asarray(frames, dtype=np.int64)])
-
-    def reference_qpos(self, frames: np.ndarray) -> np.ndarray:
-        """[T, nq] float64 reference poses of library ``frames`` [T]: root and joints from the
-        library, every other entry from the model's initial state. The root quaternion is left as
-        stored (MuJoCo's kinematics normalizes it)."""
-        sim, lib = self._env.sim, self._env.library
-        f = np.asarray(frames, dtype=np.int64).reshape(-1)
-        q = np.tile(sim.template[sim.s_qpos], (len(f), 1))
-        r = sim.root_qpos
-        q[:, r : r + 3] = lib.root_pos[f]
-        q[:, r + 3 : r + 7] = lib.root_quat[f]
-        q[:, sim.joint_qpos] = lib.joint_pos[f]
-        return q
-
-    # --- the one control -----------------------------------------------------------------------
-    def select_clips(
-        self,
-        clips: Sequence[int] | None = None,
-        env_clips: np.ndarray | None = None,
-        from_start: bool = False,
-    ) -> None:
-        """Restrict the clips episodes draw, or pin one per env, from the next reset on
-        (:meth:`TrackingEnv.select_clips`)."""
-        self._env.select_clips(clips, env_clips, from_start)
+    def _pose_template(self) -> tuple[np.ndarray, int, np.ndarray]:
+        sim = self._env.sim
+        return sim.template[sim.s_qpos], sim.root_qpos, np.asarray(sim.joint_qpos)

@@ -6,7 +6,6 @@ state (copied to numpy on every call). Shapes: N envs, J joints, E end effectors
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
@@ -68,24 +67,6 @@ class MjxTrackingView(TrackingViewBase):
     def reference_frames(self, frames: np.ndarray) -> np.ndarray:
         return np.asarray(self._env.core.ref_frames[np.asarray(frames, dtype=np.int64)], np.float64)
 
-    def reference_joint_pos(self, frames: np.ndarray) -> np.ndarray:
-        return np.array(self._env.library.joint_pos[np.asarray(frames, dtype=np.int64)])
-
-    def reference_qpos(self, frames: np.ndarray) -> np.ndarray:
-        """[T, nq] reference poses: root and joints from the library, the rest the model's qpos0."""
-        core, lib = self._env.core, self._env.library
-        f = np.asarray(frames, dtype=np.int64).reshape(-1)
-        q = np.tile(np.asarray(core.model.qpos0, np.float64), (len(f), 1))
-        r = core.root_qpos
-        q[:, r : r + 3] = lib.root_pos[f]
-        q[:, r + 3 : r + 7] = lib.root_quat[f]
-        q[:, np.asarray(core.joint_qpos)] = lib.joint_pos[f]
-        return q
-
-    def select_clips(
-        self,
-        clips: Sequence[int] | None = None,
-        env_clips: np.ndarray | None = None,
-        from_start: bool = False,
-    ) -> None:
-        self._env.select_clips(clips, env_clips, from_start)
+    def _pose_template(self) -> tuple[np.ndarray, int, np.ndarray]:
+        core = self._env.core
+        return np.asarray(core.model.qpos0, np.float64), core.root_qpos, np.asarray(core.joint_qpos)
