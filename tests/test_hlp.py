@@ -20,7 +20,7 @@ from amorctl.hlp.discriminator import (
     gradient_penalty,
     reward_from_logits,
 )
-from amorctl.hlp.policy import HlpActorCritic, RunningNorm, softmax_weights
+from amorctl.hlp.policy import HlpActorCritic, hlp_normalizer, softmax_weights
 from amorctl.hlp.windows import DatasetWindows, WindowHistory, WindowSpec, observation_slices
 
 
@@ -90,7 +90,7 @@ def test_gae_matches_hand_computation_and_bootstraps_truncation() -> None:
 def test_running_norm_matches_numpy_statistics() -> None:
     rng = np.random.default_rng(2)
     x = rng.normal(3.0, 2.0, size=(300, 4))
-    norm = RunningNorm(4)
+    norm = hlp_normalizer(4)
     for chunk in np.split(x, [50, 170]):
         norm.update(torch.as_tensor(chunk))
     np.testing.assert_allclose(norm.mean.numpy(), x.mean(0), rtol=1e-10)

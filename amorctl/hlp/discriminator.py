@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from amorctl.core.contracts import Snapshot
-from amorctl.hlp.policy import RunningNorm
+from amorctl.hlp.policy import hlp_normalizer
 from amorctl.hlp.state import load_module, load_optimizer, module_arrays, optimizer_arrays
 
 
@@ -39,7 +39,7 @@ class Discriminator(nn.Module):
         self, window_size: int, latent_dim: int, hidden: tuple[int, ...], z_hidden: tuple[int, ...]
     ) -> None:
         super().__init__()
-        self.norm = RunningNorm(window_size, clip=10.0)
+        self.norm = hlp_normalizer(window_size, clip=10.0)
         z_layers: list[nn.Module] = []
         width = latent_dim
         for h in z_hidden:

@@ -3,7 +3,7 @@
 The actor is a 3-layer ELU MLP giving the logits' mean mu [N, m]; a state-independent log-std
 [m] sets the spread. PPO treats the logits u ~ N(mu, sigma) as the action (log-probabilities and
 entropy are the Gaussian's); the env receives ``w = softmax(u)``. The critic is a second ELU MLP
-with one output. Inputs are normalized by a running mean/std (:class:`RunningNorm`).
+with one output. Inputs are normalized by a running mean/std (:func:`hlp_normalizer`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from amorctl.core.ppo_math import gaussian_log_prob
-from amorctl.core.running_moments import fold_moments
+from amorctl.core.torch_norm import RunningNormalizer
 
 
 def mlp(sizes: list[int], out: int) -> nn.Sequential:
@@ -28,33 +28,10 @@ def mlp(sizes: list[int], out: int) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class RunningNorm(nn.Module):
-    """Running mean/std of inputs [N, D] (float64 statistics), applied as clipped z-scores."""
-
-    def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-8) -> None:
-        super().__init__()
-        self.clip, self.eps = clip, eps
-        self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
-        self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
-        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
-
-    @torch.no_grad()
-    def update(self, x: torch.Tensor) -> None:
-        """Fold a batch [N, D] into the statistics (Chan et al.'s parallel update)."""
-        x = x.detach().to(torch.float64).reshape(-1, self.mean.shape[0])
-        n = x.shape[0]
-        if n == 0:
-            return
-        mean, var, count = fold_moments(
-            self.mean, self.var, self.count, x.mean(0), x.var(0, unbiased=False), n
-        )
-        self.mean.copy_(mean)
-        self.var.copy_(var)
-        self.count.copy_(count)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        std = torch.sqrt(self.var + self.eps).to(x.dtype)
-        return torch.clamp((x - self.mean.to(x.dtype)) / std, -self.clip, self.clip)
+def hlp_normalizer(dim: int, clip: float = 10.0) -> RunningNormalizer:
+    """The HLP's running mean/std (policy inputs, discriminator windows): the shared normalizer
+    with the HLP's scale ``sqrt(var + 1e-8)`` (:mod:`amorctl.core.torch_norm`)."""
+    return RunningNormalizer(dim, clip=clip, eps=1e-8, eps_inside_sqrt=True)
 
 
 def softmax_weights(logits: torch.Tensor) -> torch.Tensor:
@@ -86,7 +63,7 @@ class HlpActorCritic(nn.Module):
     ) -> None:
         super().__init__()
         self.obs_dim, self.m = obs_dim, m
-        self.normalizer = RunningNorm(obs_dim, obs_clip)
+        self.normalizer = hlp_normalizer(obs_dim, obs_clip)
         self.actor = mlp([obs_dim, *actor_hidden], m)
         self.critic = mlp([obs_dim, *critic_hidden], 1)
         self.log_std = nn.Parameter(torch.full((m,), math.log(init_std)))

@@ -13,7 +13,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from amorctl.core.running_moments import fold_moments
+from amorctl.core.torch_norm import RunningNormalizer
+
+__all__ = ["Actor", "Critic", "RunningNormalizer", "load_modules", "mlp", "modules_to_arrays"]
 
 
 def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float) -> nn.Sequential:
@@ -57,47 +59,6 @@ class Critic(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs)
-
-
-class RunningNormalizer(nn.Module):
-    """Running mean/std of observations (parallel Welford / Chan update), saved with the policy.
-
-    Buffers: ``mean`` [D], ``var`` [D] (float64 for exact accumulation), ``count`` [] float64.
-    ``forward(x [B, D]) -> clip((x - mean) / (sqrt(var) + eps), -clip, clip)`` in float32. The
-    additive ``eps`` (as rsl_rl's) keeps near-constant features (a reference that barely varies,
-    the weights under ``--fixed-weights``) from being blown up to ±clip by tiny deviations.
-    """
-
-    def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-2) -> None:
-        super().__init__()
-        self.clip = clip
-        self.eps = eps
-        self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
-        self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
-        self.register_buffer("count", torch.zeros((), dtype=torch.float64))
-
-    @torch.no_grad()
-    def update(self, x: torch.Tensor) -> None:
-        """Fold a batch x [B, D] into the running statistics."""
-        x = x.to(torch.float64).reshape(-1, self.mean.shape[0])
-        batch_count = x.shape[0]
-        if batch_count == 0:
-            return
-        self.fold(x.mean(0), x.var(0, unbiased=False), batch_count)
-
-    @torch.no_grad()
-    def fold(self, batch_mean: torch.Tensor, batch_var: torch.Tensor, batch_count: float) -> None:
-        """Fold a batch's float64 mean [D], population variance [D] and size into the statistics
-        (data-parallel training computes them over all ranks' batches)."""
-        mean, var, count = fold_moments(self.mean, self.var, self.count, batch_mean, batch_var, batch_count)
-        self.mean.copy_(mean)
-        self.var.copy_(var)
-        self.count.copy_(count)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        std = (torch.sqrt(self.var) + self.eps).to(torch.float32)
-        y = (x - self.mean.to(torch.float32)) / std
-        return torch.clamp(y, -self.clip, self.clip)
 
 
 def modules_to_arrays(modules: dict[str, nn.Module]) -> dict[str, np.ndarray]:
