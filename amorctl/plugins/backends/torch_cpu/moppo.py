@@ -61,14 +61,11 @@ from amorctl.core.ppo_math import (
     gaussian_kl,
     gaussian_log_prob,
 )
+from amorctl.core.torch_norm import RunningNormalizer
 from amorctl.core.vecenv import VectorEnv, weight_sampler_of
 from amorctl.plugins.backends.episode_window import EpisodeWindow
 from amorctl.plugins.backends.torch_cpu.batch import Batch
-from amorctl.plugins.backends.torch_cpu.networks import (
-    Actor,
-    Critic,
-    RunningNormalizer,
-)
+from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic
 from amorctl.plugins.backends.torch_cpu.replicas import Replicas
 from amorctl.plugins.backends.torch_cpu.return_scale import ReturnScale
 from amorctl.plugins.backends.torch_cpu.survival_channel import (

@@ -1,4 +1,5 @@
-"""The actor pi(a | s, c, w), the vector critic V(s, c, w) in R^m, and the observation normalizer.
+"""The actor pi(a | s, c, w) and the vector critic V(s, c, w) in R^m (the observation normalizer
+is :class:`amorctl.core.torch_norm.RunningNormalizer`).
 
 Observations already carry the context c and the weights w (the last m entries), so both
 networks take the (normalized) observation vector as their whole input.
@@ -12,10 +13,6 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from torch import nn
-
-from amorctl.core.torch_norm import RunningNormalizer
-
-__all__ = ["Actor", "Critic", "RunningNormalizer", "load_modules", "mlp", "modules_to_arrays"]
 
 
 def mlp(in_dim: int, hidden: Sequence[int], out_dim: int, out_gain: float) -> nn.Sequential:

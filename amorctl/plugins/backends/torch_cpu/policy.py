@@ -28,8 +28,9 @@ from torch import nn
 from amorctl.core.config import NetworkConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.core.torch_norm import RunningNormalizer
 from amorctl.plugins.backends.host import export_snapshot
-from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, RunningNormalizer, load_modules
+from amorctl.plugins.backends.torch_cpu.networks import Actor, Critic, load_modules
 
 
 class TorchPolicy:

@@ -64,7 +64,7 @@ class Replicas:
 
     def fold_normalizer(self, normalizer: Any, obs: torch.Tensor) -> None:
         """Fold the moments of all ranks' observations [B, D] into ``normalizer``
-        (a :class:`~amorctl.plugins.backends.torch_cpu.networks.RunningNormalizer`)."""
+        (a :class:`~amorctl.core.torch_norm.RunningNormalizer`)."""
         x = obs.to(torch.float64).reshape(-1, normalizer.mean.shape[0])
         sums = self.sum_(torch.cat([torch.tensor([float(x.shape[0])], dtype=torch.float64), x.sum(0)]))
         count = float(sums[0])
