@@ -151,11 +151,10 @@ def tune(
     if live:  # before any work: beyond loopback only with a token (docs/tune.md, "Security")
         token = check_bind(host, token, f"--live --host {host}")
     if hlp is not None:  # the high-level policy picks the weights (amorctl.hlp.tune)
-        request = TuneRequest(
-            run, motion, weights, schedule, seconds, out, plot, video, stop_on_fall, seed, data, live,
-            host, port, token, save_to, hlp, scale, json_,
-        )  # fmt: skip
-        _tune_with_hlp(request)
+        fields = dict(motion=motion, weights=weights, schedule=schedule, seconds=seconds, out=out)
+        fields |= dict(plot=plot, video=video, stop_on_fall=stop_on_fall, seed=seed, data=data)
+        fields |= dict(live=live, host=host, port=port, token=token, save_to=save_to, hlp=hlp)
+        _tune_with_hlp(TuneRequest(run=run, scale=scale, json=json_, **fields))
         if live:
             from amorctl.tune.live import end_live_process
 
