@@ -59,6 +59,34 @@ def load_library(character: str, dataset: str | Path | None) -> Any:
     return library
 
 
+def build_tracking_env(
+    env_cls: Any,
+    *,
+    character: str,
+    dataset: str | Path | None,
+    objective_set: str,
+    num_envs: int,
+    episode_seconds: float,
+    seed: int,
+    **options: Any,
+) -> Any:
+    """A backend's tracking env: ``env_cls(spec, library, objective_set, num_envs=...,
+    max_episode_steps=..., seed=..., **options)`` for the registered ``character`` on ``dataset``
+    (default: its built-in clips), episodes of ``episode_seconds`` at its control rate.
+
+    Raises:
+        AmorError: an unknown character, a missing dataset or one of another character.
+    """
+    from amorctl.registry import get_registry
+
+    spec = get_registry().character(character)  # unknown names fail here, clearly
+    library = load_library(character, dataset)
+    steps = max(1, round(episode_seconds * spec.control_hz))
+    return env_cls(
+        spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
+    )
+
+
 def export_snapshot(policy: Any, arrays: dict[str, Any], layers: Mapping[str, int]) -> Snapshot:
     """A policy's ``export_arrays()``: its backend-neutral ``arrays`` and the metadata (format,
     activation, observation clip, the number of linear layers of ``actor`` and ``critic``

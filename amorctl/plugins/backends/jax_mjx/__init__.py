@@ -24,7 +24,7 @@ from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
-from amorctl.plugins.backends.host import load_library
+from amorctl.plugins.backends.host import build_tracking_env
 from amorctl.plugins.backends.jax_mjx.xla_cpu import disable_concurrency_optimized_scheduler
 
 disable_concurrency_optimized_scheduler()
@@ -80,13 +80,16 @@ class JaxMjxBackend:
         """The MJX motion-tracking env (:class:`~.env.MjxTrackingEnv`) for ``character``."""
         import_mjx_quietly()
         from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
-        from amorctl.registry import get_registry
 
-        spec = get_registry().character(character)
-        library = load_library(character, dataset)
-        steps = max(1, round(episode_seconds * spec.control_hz))
-        return MjxTrackingEnv(
-            spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
+        return build_tracking_env(
+            MjxTrackingEnv,
+            character=character,
+            dataset=dataset,
+            objective_set=objective_set,
+            num_envs=num_envs,
+            episode_seconds=episode_seconds,
+            seed=seed,
+            **options,
         )
 
     def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:

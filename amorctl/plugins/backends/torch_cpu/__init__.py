@@ -18,7 +18,7 @@ from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
-from amorctl.plugins.backends.host import load_library
+from amorctl.plugins.backends.host import build_tracking_env
 
 NAME = "torch-cpu"
 
@@ -42,15 +42,18 @@ class TorchCpuBackend:
         """The motion-tracking env for ``character`` on ``dataset`` (default: the built-in clips,
         preprocessed into a cache on first use). Extra ``options`` go to the env's constructor."""
         from amorctl.envs.tracking_env import TrackingEnv
-        from amorctl.registry import get_registry
 
-        spec = get_registry().character(character)  # unknown names fail here, clearly
-        library = load_library(character, dataset)
-        steps = max(1, round(episode_seconds * spec.control_hz))
         if "nthread" not in options:  # the cores this process may use, shared among the node's ranks
             options["nthread"] = _threads_per_local_rank()
-        return TrackingEnv(
-            spec, library, objective_set, num_envs=num_envs, max_episode_steps=steps, seed=seed, **options
+        return build_tracking_env(
+            TrackingEnv,
+            character=character,
+            dataset=dataset,
+            objective_set=objective_set,
+            num_envs=num_envs,
+            episode_seconds=episode_seconds,
+            seed=seed,
+            **options,
         )
 
     def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:
