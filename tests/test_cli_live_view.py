@@ -60,7 +60,7 @@ def test_train_view_prints_header_and_throttled_lines(capsys, tmp_path: Path) ->
     # the first iteration and the last; 2 and 3 come within 10 s of the first
     assert [ln.split()[1] for ln in lines] == ["1/10", "10/10"]
     assert lines[0].endswith("returns pos=1 vel=–")
-    assert "survival 0.75" in lines[0]
+    assert "survival 0.75" in lines[0] and "steps/s (fp32)" in lines[0]  # the precision chosen
 
 
 def test_train_view_panel(tmp_path: Path) -> None:
@@ -69,6 +69,7 @@ def test_train_view_panel(tmp_path: Path) -> None:
     text = _text(view.render(_train_metrics(5), 10, 10.0))
     assert "iteration 5/10" in text and "left 0:00:10" in text and "survival 75%" in text
     assert "(2.00 s)" in text  # 100 control steps at 50 Hz
+    assert "fp32" in text and "bf16" in _text(view.render({**_train_metrics(5), "bf16": 1.0}, 10, 10.0))
     row = next(ln for ln in text.splitlines() if ln.strip().startswith("pos"))
     assert row.split() == ["pos", "1", "0.01", "0.50"]
 

@@ -71,7 +71,8 @@ class _Display(TrainingView):
             f"loss {fmt(m['loss/total'])} (policy {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])}, "
             f"entropy {fmt(m['loss/entropy'])})   KL {fmt(m['kl'])}   "
             f"clip {fmt(m['clip_fraction'], '.2f')}   "
-            f"lr {fmt(m['learning_rate'])}   action std {fmt(m['action_std'])}\n"
+            f"lr {fmt(m['learning_rate'])}   action std {fmt(m['action_std'])}   "
+            f"{'bf16' if m.get('bf16') else 'fp32'}\n"
             f"episodes {int(m['episodes'])}   length {fmt(m['episode/length'], '.1f')} steps{seconds}   "
             f"survival {fmt(100 * m['episode/survival'], '.0f')}%   "
             f"return·w {fmt(m['return/scalarized'])}"
@@ -92,7 +93,7 @@ class _Display(TrainingView):
 
     def line(self, m: dict[str, float]) -> str:
         return (
-            f"{m['env_steps_per_s']:,.0f} steps/s  "
+            f"{m['env_steps_per_s']:,.0f} steps/s ({'bf16' if m.get('bf16') else 'fp32'})  "
             f"loss {fmt(m['loss/total'])}  value {fmt(m['loss/value'])}  kl {fmt(m['kl'])}  "
             f"ep len {fmt(m['episode/length'], '.1f')}  "
             f"survival {fmt(m['episode/survival'], '.2f')}  returns {self.per_objective(m, 'return')}"

@@ -297,6 +297,7 @@ class JaxMOPPOTrainer:
             metrics[key] = float(stats[key])
         metrics["learning_rate"] = self.learning_rate
         metrics["action_std"] = float(np.exp(np.asarray(self.params["actor"]["log_std"])).mean())
+        metrics["bf16"] = 0.0  # jax-mjx trains in fp32
         metrics.update(self.window.metrics(self.names))
         for i, name in enumerate(self.names):
             metrics[f"reward/{name}"] = float(stats["mean_reward"][i])

@@ -30,6 +30,7 @@ def local_metrics(
     metrics.update(stats)
     metrics["learning_rate"] = trainer.learning_rate
     metrics["action_std"] = float(torch.exp(trainer.actor.log_std.detach()).mean())
+    metrics["bf16"] = float(trainer.bf16)  # the precision the backend chose (1: bf16 autocast)
     assert batch.returns is not None
     mean_reward = batch.rewards.mean(dim=(0, 1))
     returns, values = trainer.objective_view(batch.returns), trainer.objective_view(batch.values)
