@@ -2,7 +2,7 @@
 
 :class:`EpisodeWindow` sums each env's running episode (per-objective return, scalarized return
 ``r·w``, length) and moves every finished episode into a ring of the last
-:data:`~amorctl.plugins.backends.host.EPISODE_WINDOW` episodes, whose means are the ``return/*``,
+:data:`EPISODE_WINDOW` episodes, whose means are the ``return/*``,
 ``return/scalarized``, ``episode/length`` and ``episode/survival`` metrics. Its arrays go into
 checkpoints under ``episodes.<name>`` (with ``recent_ptr`` and ``episodes`` in the metadata), so
 a resumed run reports what an uninterrupted one would. Shapes: N envs, m objectives, W window.
@@ -15,10 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.plugins.backends.host import EPISODE_STATS, EPISODE_WINDOW
-
-#: The sums :meth:`EpisodeWindow.sums` hands a data-parallel reduction, by name.
-SUM_NAMES = ("count", "episodes", "return", "scalarized", "length", "survived")
+#: Finished episodes the recent-episode statistics average over.
+EPISODE_WINDOW = 100
+#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
+EPISODE_STATS: tuple[str, ...] = (
+    "ep_return", "ep_scalar", "ep_length",
+    "recent_return", "recent_scalar", "recent_length", "recent_survived",
+)  # fmt: skip
 
 
 class EpisodeWindow:
@@ -69,8 +72,9 @@ class EpisodeWindow:
         self.ep_length[ended] = 0
 
     def sums(self) -> dict[str, np.ndarray]:
-        """The window's sums by name (:data:`SUM_NAMES`), float64: what a data-parallel run adds
-        up over ranks before :func:`window_metrics`."""
+        """The window's sums by name (``count``, ``episodes``, ``return`` [m], ``scalarized``,
+        ``length``, ``survived``), float64: what a data-parallel run adds up over ranks before
+        :func:`window_metrics`."""
         filled = ~np.isnan(self.recent_length)
         return {
             "count": np.array([filled.sum()], np.float64),

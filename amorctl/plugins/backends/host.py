@@ -29,13 +29,6 @@ def linear_param_name(net: str, i: int, part: str) -> str:
     return f"{net}.net.{2 * i}.{part}"
 
 
-#: Episodes the recent-episode statistics average over.
-EPISODE_WINDOW = 100
-#: Per-env episode accumulators and recent-episode windows, saved in checkpoints for exact resume.
-EPISODE_STATS: tuple[str, ...] = (
-    "ep_return", "ep_scalar", "ep_length",
-    "recent_return", "recent_scalar", "recent_length", "recent_survived",
-)  # fmt: skip
 #: Checkpoint metadata -> trainer attribute of the counters every MOPPO trainer keeps.
 COUNTERS: dict[str, str] = {"iteration": "iteration_count", "env_steps": "env_steps"}
 
