@@ -181,11 +181,12 @@ def test_padded_minibatch_equals_the_unpadded_one() -> None:
         assert float(sa[key]) == pytest.approx(float(sb[key]), abs=1e-6), key
 
 
-@pytest.mark.parametrize("minibatches", [2, 3])
-def test_a_whole_update_matches_torch(minibatches: int) -> None:
+@pytest.mark.parametrize(("minibatches", "return_norm"), [(2, "off"), (3, "off"), (3, "value+advantage")])
+def test_a_whole_update_matches_torch(minibatches: int, return_norm: str) -> None:
     """Same batch, same minibatch order: every Adam step, clipped gradient and learning-rate
-    adaptation of torch-cpu's update, within float32 rounding."""
-    config = tiny_config(ppo__num_minibatches=minibatches, ppo__num_epochs=2)
+    adaptation of torch-cpu's update, within float32 rounding (also with per-objective return
+    normalization, given torch's running stds)."""
+    config = tiny_config(ppo__num_minibatches=minibatches, ppo__num_epochs=2, ppo__return_norm=return_norm)
     trainer, batch = torch_trainer_with_batch(config)
     nets, params, norm, jb, cfg = jax_side(trainer, batch, config)
     state = trainer.generator.get_state()
@@ -199,7 +200,12 @@ def test_a_whole_update_matches_torch(minibatches: int) -> None:
     optimizer = mm.make_optimizer(lr0)
     ts = mm.TrainState(params, optimizer.init(params))
     adv, ret = jnp.asarray(batch.advantages.numpy()), jnp.asarray(batch.returns.numpy())
-    ts, stats = mm.update(ts, nets, optimizer, norm, jb, adv, ret, jnp.asarray(perms), cfg)
+    stds = None
+    if trainer.return_scale is not None:
+        scale = trainer.return_scale
+        stds = (jnp.asarray(scale.return_std()), jnp.asarray(scale.advantage_std()))
+        assert np.abs(np.log(np.asarray(stds[0]))).min() > 0.3  # stds ~1.5, not 1: the test can fail
+    ts, stats = mm.update(ts, nets, optimizer, norm, jb, adv, ret, jnp.asarray(perms), cfg, stds)
     for key, value in torch_stats.items():
         assert float(stats[key]) == pytest.approx(value, abs=1e-5), key
     assert float(mm.learning_rate(ts.opt_state)) == pytest.approx(trainer.learning_rate, rel=1e-5)
@@ -230,8 +236,9 @@ def test_trained_policy_action_sign_flips_with_the_weights() -> None:
     assert abs(a[2]) < abs(a[0]) and abs(a[2]) < abs(a[1])
 
 
-def test_metrics_have_torch_cpus_names() -> None:
-    config = tiny_config()
+@pytest.mark.parametrize("return_norm", ["off", "value+advantage"])
+def test_metrics_have_torch_cpus_names(return_norm: str) -> None:
+    config = tiny_config(ppo__return_norm=return_norm)
     a = jax_trainer(config).iteration()
     env = ToyTradeoffEnv(config.env.num_envs, max_steps=20, seed=0)
     b = TorchCpuBackend().make_trainer(env, config).iteration()
@@ -249,7 +256,8 @@ JAX_TOY_RUN = {
 }  # fmt: skip
 
 
-def test_run_resumes_exactly_and_its_policy_acts_the_same_through_torch(tmp_path) -> None:
+@pytest.mark.parametrize("return_norm", ["off", "value+advantage"])
+def test_run_resumes_exactly_and_its_policy_acts_the_same_through_torch(tmp_path, return_norm: str) -> None:
     import csv
 
     from amorctl.core.config import merge
@@ -258,7 +266,7 @@ def test_run_resumes_exactly_and_its_policy_acts_the_same_through_torch(tmp_path
     from amorctl.train.loop import train_run
     from amorctl.train.rundir import RunDir
 
-    config = merge(TrainConfig(), JAX_TOY_RUN, "test")
+    config = override(merge(TrainConfig(), JAX_TOY_RUN, "test"), ppo__return_norm=return_norm)
     train_run(config, tmp_path / "full")
     part = train_run(config, tmp_path / "part", stop_after=3)
     assert part.interrupted and part.end_iteration == 3
@@ -277,6 +285,7 @@ def test_run_resumes_exactly_and_its_policy_acts_the_same_through_torch(tmp_path
     wa = load_checkpoint(tmp_path / "full/checkpoints/iter_000004.json").trainer.arrays
     wb = load_checkpoint(tmp_path / "part/checkpoints/iter_000004.json").trainer.arrays
     assert wa.keys() == wb.keys()
+    assert ("return_scale.adv_sq" in wa) == (return_norm != "off")
     for key in wa:
         np.testing.assert_array_equal(wa[key], wb[key], err_msg=key)
 

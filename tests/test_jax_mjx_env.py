@@ -260,7 +260,10 @@ def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path, capsys) ->
             "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
                     "num_envs": 4, "episode_seconds": 0.2},
             "network": {"actor_hidden": [16], "critic_hidden": [16]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 2, "precision": "fp32"},
+            # the science preset's levers: weight mixture on the device, per-objective return scale
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 2, "precision": "fp32",
+                    "return_norm": "value+advantage", "entropy_coef": 0.005},
+            "weights": {"corner_fraction": 0.1, "axis_fraction": 0.3},
         },
         "test",
     )  # fmt: skip
@@ -278,7 +281,10 @@ def test_fused_training_on_mjx_tracking_env_resumes_exactly(tmp_path, capsys) ->
         for key in ("loss/total", "loss/value", "kl", "reward/up", "episodes"):
             assert ra[key] == rb[key], (ra["iteration"], key)
     assert float(a[-1]["episodes"]) > 0 and np.isfinite(float(a[-1]["loss/total"]))
+    assert a[-1]["return_scale/advantage_std/smooth"] == b[-1]["return_scale/advantage_std/smooth"]
     run = RunDir.open(tmp_path / "full")
+    scale = run.checkpoint().trainer.arrays["return_scale.adv_sq"]
+    assert scale.shape == (7,) and np.isfinite(scale).all() and (scale > 0).all()
     policy = run.policy()
     torch_policy = TorchPolicy(run.checkpoint().trainer, run.config.network)
     obs = run.env(num_envs=4).reset(seed=1)[0]

@@ -141,7 +141,8 @@ def test_moppo_iterates_on_the_tracking_env() -> None:
 
 # --- the levers (docs/moppo.md, Levers) ----------------------------------------------------------
 def test_return_scale_tracks_per_objective_moments() -> None:
-    from amorctl.plugins.backends.torch_cpu.return_scale import RATE, ReturnScale
+    from amorctl.core.return_scale import RATE
+    from amorctl.plugins.backends.torch_cpu.return_scale import ReturnScale
 
     gen = torch.Generator().manual_seed(0)
     scale = ReturnScale(2, advantage=True)
@@ -294,17 +295,22 @@ def test_levers_are_refused_where_they_are_not_implemented(tmp_path: Path) -> No
 
     jax_levers = get_registry().backend("jax-mjx").levers
     torch_levers = get_registry().backend("torch-cpu").levers
-    config = tiny_config(run__backend="jax-mjx", ppo__return_norm="value")
+    config = tiny_config(run__backend="jax-mjx", env__kind="tracking", weights__adaptive_fraction=0.2)
     with pytest.raises(
         AmorError,
-        match=r"\[ppo\] return_norm = 'value' needs a backend that implements it; "
+        match=r"\[weights\] adaptive_fraction = 0.2 needs a backend that implements it; "
         r"run.backend = 'jax-mjx' does not",
     ):
         check_backend_levers(config, jax_levers)
-    with pytest.raises(AmorError, match=r"return_norm = 'value' needs a backend"):  # nothing written
+    with pytest.raises(AmorError, match=r"adaptive_fraction = 0.2 needs a backend"):  # nothing written
         train_run(config, tmp_path / "never")
     assert not (tmp_path / "never").exists()
     check_backend_levers(config, torch_levers)  # torch-cpu declares every lever
+    # jax-mjx implements the science preset's levers (return_norm, the weight mixture)
+    science = tiny_config(run__backend="jax-mjx", env__kind="tracking", ppo__return_norm="value+advantage",
+                          weights__corner_fraction=0.1, weights__axis_fraction=0.3)  # fmt: skip
+    assert set(levers_in_use(science)) == {"return_norm", "weight_sampling"}
+    check_backend_levers(science, jax_levers)
     # the toy and gym envs draw w themselves: only the tracking env's draws need the backend
     assert levers_in_use(tiny_config(weights__corner_fraction=0.1)) == {}
     tracking = tiny_config(env__kind="tracking", weights__corner_fraction=0.1, weights__adaptive_fraction=0.2)
@@ -322,7 +328,8 @@ def test_science_preset_is_quick_plus_the_levers() -> None:
 
     quick, science = load_preset("quick"), load_preset("science")
     assert dataclasses.replace(science, weights=WeightsConfig(), ppo=quick.ppo) == quick
-    assert dataclasses.replace(science.ppo, return_norm="off") == quick.ppo
+    assert dataclasses.replace(science.ppo, return_norm="off", entropy_coef=0.0) == quick.ppo
+    assert (science.ppo.return_norm, science.ppo.entropy_coef) == ("value+advantage", 0.005)
     assert not science.weights.plain and science.ppo.return_norm != "off"
 
 

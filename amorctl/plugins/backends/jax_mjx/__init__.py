@@ -33,6 +33,10 @@ NAME = "jax-mjx"
 #: import name -> distribution of the packages the ``jax`` extra installs
 EXTRA_MODULES = {"jax": "jax", "mujoco.mjx": "mujoco-mjx", "flax": "flax", "optax": "optax"}
 INSTALL_HINT = 'pip install "amorctl[jax]"'
+#: The training levers (docs/moppo.md, "Levers") jax-mjx implements: return normalization
+#: (moppo_math.py, trainer.py) and the weight mixture (weight_mix.py). The survival channel and
+#: adaptive weights stay torch-cpu's.
+LEVERS = frozenset({"return_norm", "weight_sampling"})
 
 
 def missing_modules() -> list[str]:
@@ -123,5 +127,6 @@ def amorctl_register_backends(register: Any) -> None:
             name=NAME,
             description=f"MuJoCo MJX physics + JAX MOPPO, sharded over devices (extra: {INSTALL_HINT})",
             make=JaxMjxBackend,
+            levers=LEVERS,
         )
     )

@@ -1,7 +1,8 @@
 """The pure motion-tracking environment on MJX: ``reset(key) -> state`` / ``step(state, a)``.
 
 The semantics are torch-cpu's :class:`amorctl.envs.tracking_env.TrackingEnv` (docs/environment.md):
-RSI at a random clip and frame, ``w ~ Dirichlet(1)`` per env per episode (or fixed weights), the
+RSI at a random clip and frame, ``w ~ Dirichlet(1)`` per env per episode (or the ``[weights]``
+mixture, :mod:`.weight_mix`, or fixed weights), the
 reference advancing one frame per control step and jumping to the start of a new random clip at
 its clip's end, the fall rule, divergence (non-finite state or ``|q̇| > 1e3``: terminated,
 rewards zeroed), truncation at ``max_episode_steps``, auto-reset, and the same observation
@@ -28,10 +29,13 @@ from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_featur
 from amorctl.core.geometry import quat_conj, quat_rotate
 from amorctl.core.specs import CharacterSpec
 from amorctl.motion.clips import MotionLibrary
+from amorctl.plugins.backends.jax_mjx import weight_mix
 from amorctl.plugins.backends.jax_mjx.physics import MjxPhysics
+from amorctl.plugins.backends.jax_mjx.weight_mix import WeightMix
 from amorctl.sim.batch_sim import MAX_QVEL
 
 xp = jnp
+PAPER_DRAW = WeightMix()  # Dirichlet(1), the paper's per-episode draw
 
 
 def _split(key: jax.Array, num: int) -> jax.Array:
@@ -116,6 +120,7 @@ class MjxTracking:
         future_frames: tuple[int, ...],
         fixed_weights: np.ndarray | None,
         fall_height_fraction: float,
+        weight_mix: WeightMix = PAPER_DRAW,
     ) -> None:
         ch = character
         self.character, self.objectives = ch, objectives
@@ -125,6 +130,7 @@ class MjxTracking:
         self.action_mode = action_mode
         self.future_frames = future_frames
         self.fixed_weights = None if fixed_weights is None else jnp.asarray(fixed_weights, jnp.float32)
+        self.weight_mix = weight_mix
         self.fall_drop = float(fall_height_fraction) * ch.standing_height
         self.physics = phys = MjxPhysics(ch)
         self.dt = 1.0 / ch.control_hz
@@ -159,6 +165,8 @@ class MjxTracking:
     def _sample_weights(self, key: jax.Array, n: int) -> jax.Array:
         if self.fixed_weights is not None:
             return jnp.broadcast_to(self.fixed_weights, (n, self.m))
+        if not self.weight_mix.plain:
+            return weight_mix.draw(key, n, self.m, self.weight_mix)
         ones = jnp.ones(self.m)
         return _draw(key, n, lambda k, shape: jax.random.dirichlet(k, ones, shape)).astype(jnp.float32)
 

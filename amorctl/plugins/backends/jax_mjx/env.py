@@ -24,9 +24,11 @@ from amorctl.core.frame_layout import frame_dim
 from amorctl.core.observation import observation_layout
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
+from amorctl.core.weight_sampling import WeightSampler
 from amorctl.motion.clips import MotionLibrary
 from amorctl.plugins.backends.jax_mjx import devices
 from amorctl.plugins.backends.jax_mjx.core import EnvState, MjxTracking, Selection, StepOut, _keys
+from amorctl.plugins.backends.jax_mjx.weight_mix import WeightMix
 from amorctl.registry import get_registry
 
 __all__ = ["EnvState", "MjxTracking", "MjxTrackingEnv", "Selection", "StepOut"]
@@ -51,6 +53,7 @@ class MjxTrackingEnv:
         action_mode: str = "absolute",
         future_frames: tuple[int, ...] = (),
         fixed_weights: np.ndarray | None = None,
+        weight_sampler: WeightSampler | None = None,
         fall_height_fraction: float = 1.0 / 3.0,
         nthread: int = 0,
         clips: Sequence[int] | None = None,
@@ -96,8 +99,10 @@ class MjxTrackingEnv:
             action_mode=action_mode,
             future_frames=tuple(int(o) for o in future_frames),
             fixed_weights=fixed,
+            weight_mix=WeightMix() if weight_sampler is None else WeightMix.of_sampler(weight_sampler),
             fall_height_fraction=fall_height_fraction,
         )
+        self.weight_sampler = weight_sampler  # its mix is drawn on the device (weight_mix.py)
         self.model = self.core.model
         self.fall_drop, self.future_frames = self.core.fall_drop, self.core.future_frames
         jn, e = ch.num_joints, len(ch.end_effectors)

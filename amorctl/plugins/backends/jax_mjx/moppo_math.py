@@ -50,6 +50,7 @@ class LossConfig:
     num_epochs: int
     num_minibatches: int
     obs_clip: float
+    return_norm: str = "off"
 
     @classmethod
     def from_config(cls, ppo: Any, obs_clip: float) -> LossConfig:
@@ -66,6 +67,7 @@ class LossConfig:
             num_epochs=ppo.num_epochs,
             num_minibatches=ppo.num_minibatches,
             obs_clip=obs_clip,
+            return_norm=ppo.return_norm,
         )
 
 
@@ -138,12 +140,15 @@ def minibatch_loss(
     norm: tuple[jax.Array, jax.Array],
     mb: dict[str, jax.Array],
     cfg: LossConfig,
+    stds: tuple[jax.Array, jax.Array] | None = None,
 ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """The MOPPO loss on one (possibly padded) minibatch; returns (loss, stats).
 
     ``mb`` holds ``obs`` [M, D], ``actions``, ``means`` [M, A], ``log_probs`` [M], ``values``,
     ``weights``, ``advantages``, ``returns`` [M, m], ``old_log_std`` [A] and ``mask`` [M] (1 for
     real samples). All means and the advantage normalization run over the real samples only.
+    ``stds``: the running return and advantage stds [m] of ``return_norm``
+    (:mod:`amorctl.core.return_scale`); None for the paper's loss.
     """
     mask = mb["mask"]
     count = jnp.sum(mask)
@@ -159,7 +164,10 @@ def minibatch_loss(
     log_ratio = log_prob - mb["log_probs"]
     ratio = jnp.exp(log_ratio)
 
-    adv = jnp.sum(mb["advantages"] * mb["weights"], axis=-1)
+    vector_adv = mb["advantages"]
+    if stds is not None and cfg.return_norm == "value+advantage":
+        vector_adv = vector_adv / stds[1]
+    adv = jnp.sum(vector_adv * mb["weights"], axis=-1)
     adv_mean = avg(adv)
     adv_std = jnp.sqrt(avg((adv - adv_mean) ** 2))
     adv = (adv - adv_mean) / (adv_std + 1e-8)
@@ -167,10 +175,11 @@ def minibatch_loss(
     policy_loss = avg(clipped_surrogate(adv, ratio, clip, xp=jnp))
 
     returns, old_values = mb["returns"], mb["values"]
-    value_err = (values - returns) ** 2
+    sigma = 1.0 if stds is None else stds[0]  # errors in units of each objective's return std
+    value_err = ((values - returns) / sigma) ** 2
     if cfg.clip_value_loss:
-        clipped = old_values + jnp.clip(values - old_values, -clip, clip)
-        value_err = jnp.maximum(value_err, (clipped - returns) ** 2)
+        clipped = old_values + jnp.clip(values - old_values, -clip * sigma, clip * sigma)
+        value_err = jnp.maximum(value_err, ((clipped - returns) / sigma) ** 2)
     value_loss = 0.5 * avg(jnp.mean(value_err, axis=-1))
 
     entropy = gaussian_entropy(log_std, xp=jnp)
@@ -200,10 +209,15 @@ def clip_by_norm(tree: Any, max_norm: float) -> Any:
 
 
 def clipped_grads(
-    params: Params, nets: Networks, norm: Any, mb: dict[str, jax.Array], cfg: LossConfig
+    params: Params,
+    nets: Networks,
+    norm: Any,
+    mb: dict[str, jax.Array],
+    cfg: LossConfig,
+    stds: tuple[jax.Array, jax.Array] | None = None,
 ) -> tuple[Params, dict[str, jax.Array]]:
     """Gradients of :func:`minibatch_loss`, the actor's and the critic's norms clipped separately."""
-    grads, stats = jax.grad(minibatch_loss, has_aux=True)(params, nets, norm, mb, cfg)
+    grads, stats = jax.grad(minibatch_loss, has_aux=True)(params, nets, norm, mb, cfg, stds)
     grads = {
         "actor": clip_by_norm(grads["actor"], cfg.max_grad_norm),
         "critic": clip_by_norm(grads["critic"], cfg.max_grad_norm),
@@ -237,8 +251,10 @@ def update(
     returns: jax.Array,
     perms: jax.Array,
     cfg: LossConfig,
+    stds: tuple[jax.Array, jax.Array] | None = None,
 ) -> tuple[TrainState, dict[str, jax.Array]]:
-    """All epochs of minibatch Adam steps as one scan; ``perms`` [num_epochs, B] orders the samples.
+    """All epochs of minibatch Adam steps as one scan; ``perms`` [num_epochs, B] orders the samples
+    (``stds``: :func:`minibatch_loss`'s).
 
     Returns the new state and every stat averaged over the minibatches (as torch-cpu's ``update``).
     """
@@ -261,7 +277,7 @@ def update(
         ids, m = xs
         mb = {key: value[ids] for key, value in samples.items()}
         mb["mask"], mb["old_log_std"] = m, batch.old_log_std
-        grads, stats = clipped_grads(st.params, nets, norm, mb, cfg)
+        grads, stats = clipped_grads(st.params, nets, norm, mb, cfg, stds)
         updates, opt_state = optimizer.update(grads, st.opt_state, st.params)
         params = optax.apply_updates(st.params, updates)
         if cfg.adaptive_lr:

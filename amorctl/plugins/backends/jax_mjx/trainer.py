@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from amorctl.core import return_scale as rs
 from amorctl.core.config import NetworkConfig, PPOConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
@@ -73,8 +74,13 @@ def _learn(
     norm: Any,
     batch: mm.Batch,
     key: jax.Array,
-) -> tuple[mm.TrainState, dict[str, jax.Array]]:
-    """GAE, all minibatch updates, and the reductions the metrics and the normalizer need."""
+    scale: rs.Moments | None,
+    scale_updates: jax.Array,
+) -> tuple[mm.TrainState, dict[str, Any]]:
+    """GAE, all minibatch updates, and the reductions the metrics and the normalizer need.
+
+    ``scale``: the running return statistics of ``return_norm`` (None when off), folded with this
+    batch before the update as torch-cpu does; the folded ones come back as ``stats["scale"]``."""
     T, N, m = batch.rewards.shape
     adv, ret = mm.gae(
         batch.rewards,
@@ -86,9 +92,15 @@ def _learn(
         cfg.gae_lambda,
     )
     adv, ret = adv.reshape(T * N, m), ret.reshape(T * N, m)
+    stds = None
+    if scale is not None:
+        rate = jnp.where(scale_updates == 0, 1.0, rs.RATE)
+        scale = rs.fold(scale, rs.batch_moments(ret, adv, xp=jnp), rate)
+        stds = (rs.return_std(scale, xp=jnp), rs.advantage_std(scale, xp=jnp))
     keys = jax.random.split(key, cfg.num_epochs)
     perms = jax.vmap(lambda k: jax.random.permutation(k, T * N))(keys)
-    state, stats = mm.update(state, nets, optimizer, norm, batch, adv, ret, perms, cfg)
+    state, stats = mm.update(state, nets, optimizer, norm, batch, adv, ret, perms, cfg, stds)
+    stats["scale"] = scale
     var = jnp.var(ret, axis=0)
     stats["explained_variance"] = jnp.where(var > 0, 1 - jnp.var(ret - batch.values, axis=0) / var, jnp.nan)
     stats["mean_reward"] = jnp.mean(batch.rewards, axis=(0, 1))
@@ -139,6 +151,10 @@ class JaxMOPPOTrainer:
         if ppo.normalize_obs:
             self.normalizer.update(self.obs)
         self.window = EpisodeWindow(n, m)  # running episode sums, the last finished episodes
+        # [ppo] return_norm: running per-objective return statistics (core/return_scale.py)
+        zeros, ones = np.zeros(m, np.float32), np.ones(m, np.float32)
+        self.return_scale = None if ppo.return_norm == "off" else rs.Moments(zeros, ones, ones)
+        self.return_scale_updates = 0
 
     # ------------------------------------------------------------------ small API
     @property
@@ -263,8 +279,13 @@ class JaxMOPPOTrainer:
         batch, times = self._fused_rollout(norm) if self.fused else self._host_rollout(norm)
         batch = devices.shard_batch(self.mesh, batch)
         t0 = time.perf_counter()
-        self.state, stats = self._learn(self.state, norm, batch, self._g(self._next_key()))
+        scale = None if self.return_scale is None else self._g(self.return_scale)
+        updates = jnp.asarray(self.return_scale_updates, jnp.int32)
+        self.state, stats = self._learn(self.state, norm, batch, self._g(self._next_key()), scale, updates)
         stats = jax.tree_util.tree_map(devices.to_host, stats)
+        if self.return_scale is not None:
+            self.return_scale = rs.Moments(*(np.asarray(x, np.float32) for x in stats["scale"]))
+            self.return_scale_updates += 1
         times["update"] = time.perf_counter() - t0
         if self.cfg.normalize_obs:
             self.normalizer.update_moments(batch.obs.shape[0], stats["obs_mean"], stats["obs_var"])
@@ -284,6 +305,7 @@ class JaxMOPPOTrainer:
         metrics["time/iteration_s"] = elapsed
         metrics["time/env_frac"] = times["env"] / elapsed
         metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
+        metrics["time/update_frac"] = times["update"] / elapsed
         metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
         for key in (
             "loss/total",
@@ -299,6 +321,12 @@ class JaxMOPPOTrainer:
         metrics["action_std"] = float(np.exp(np.asarray(self.params["actor"]["log_std"])).mean())
         metrics["bf16"] = 0.0  # jax-mjx trains in fp32
         metrics.update(self.window.metrics(self.names))
+        if self.return_scale is not None:
+            scale = self.return_scale
+            ret_std, adv_std = rs.return_std(scale, xp=np), rs.advantage_std(scale, xp=np)
+            for i, name in enumerate(self.names):
+                metrics[f"return_scale/return_std/{name}"] = float(ret_std[i])
+                metrics[f"return_scale/advantage_std/{name}"] = float(adv_std[i])
         for i, name in enumerate(self.names):
             metrics[f"reward/{name}"] = float(stats["mean_reward"][i])
             metrics[f"explained_variance/{name}"] = float(stats["explained_variance"][i])
@@ -316,6 +344,9 @@ class JaxMOPPOTrainer:
         arrays["obs"] = self.obs.copy()
         window_arrays, window_meta = self.window.state()
         arrays.update(window_arrays)
+        if self.return_scale is not None:  # torch-cpu's names (float64 there, float32 here)
+            for key, value in zip(rs.STATE_KEYS, self.return_scale, strict=True):
+                arrays[f"return_scale.{key}"] = np.asarray(value, np.float32).copy()
         meta: dict[str, Any] = {
             "iteration": self.iteration_count,
             "env_steps": self.env_steps,
@@ -327,6 +358,8 @@ class JaxMOPPOTrainer:
             "action_dim": self.env.action_dim,
             "objectives": list(self.names),
         }
+        if self.return_scale is not None:
+            meta["return_scale_updates"] = self.return_scale_updates
         # safetensors checkpoints store 0-d arrays as [1]: write them so, and a fresh state matches
         arrays = {k: np.atleast_1d(v) for k, v in arrays.items()}
         layout = getattr(self.env, "obs_layout", None)
@@ -358,6 +391,11 @@ class JaxMOPPOTrainer:
             self.key = jnp.asarray(arrays["rng.jax"])
             self.obs = np.asarray(arrays["obs"], np.float32).copy()
             self.window.load_state(arrays, meta)
+            if self.return_scale is not None:
+                m = self.num_objectives
+                saved = (arrays[f"return_scale.{k}"] for k in rs.STATE_KEYS)
+                self.return_scale = rs.Moments(*(np.asarray(a, np.float32).reshape(m) for a in saved))
+                self.return_scale_updates = int(meta["return_scale_updates"])
         except KeyError as exc:
             raise AmorError(f"checkpoint does not fit this network configuration: missing {exc}") from None
         self.state = devices.replicate(self.mesh, mm.TrainState(params, opt_state))

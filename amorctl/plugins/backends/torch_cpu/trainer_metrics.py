@@ -26,6 +26,7 @@ def local_metrics(
     metrics["time/iteration_s"] = elapsed
     metrics["time/env_frac"] = times["env"] / elapsed
     metrics["time/network_frac"] = (times["policy"] + times["update"]) / elapsed
+    metrics["time/update_frac"] = times["update"] / elapsed  # of the network share: the minibatch updates
     metrics["time/glue_frac"] = max(0.0, 1.0 - metrics["time/env_frac"] - metrics["time/network_frac"])
     metrics.update(stats)
     metrics["learning_rate"] = trainer.learning_rate
