@@ -155,9 +155,18 @@ def export_pretrained_cmd(
     replace: Annotated[
         bool, typer.Option("--replace", help="Replace an existing entry of that name.")
     ] = False,
+    resumable: Annotated[
+        bool,
+        typer.Option(
+            "--resumable",
+            help="Keep the whole training state (optimizer, RNG, env), so that the entry can be "
+            "trained further with benchmarks/stage.py (about 4x the size).",
+        ),
+    ] = False,
     json_out: JsonFlag = False,
 ) -> None:
-    """Write OUT/NAME: one checkpoint without optimizer state, config, dataset, card.json, README.md."""
+    """Write OUT/NAME: one checkpoint (without optimizer state unless --resumable), config, dataset,
+    card.json, README.md."""
     from amorctl.train.pretrained_export import export_pretrained
 
     entry = export_pretrained(
@@ -171,6 +180,7 @@ def export_pretrained_cmd(
         figures=figure or [],
         commit=commit,
         replace=replace,
+        resumable=resumable,
     )
     size = sum(p.stat().st_size for p in entry.path.rglob("*") if p.is_file())
     if json_out:

@@ -136,6 +136,8 @@ def export_pretrained(
     figures: Sequence[str | Path] = (),
     commit: str | None = None,
     replace: bool = False,
+    resumable: bool = False,
+    stages: Sequence[dict[str, Any]] = (),
 ) -> pretrained.PretrainedEntry:
     """Write the pretrained entry ``out/name`` from checkpoint ``iteration`` (None: newest) of a run.
 
@@ -149,6 +151,10 @@ def export_pretrained(
         figures: image files copied into ``figures/`` and listed in the card.
         commit: the code version that trained it; None: ``git rev-parse HEAD`` of the current directory.
         replace: replace an existing entry of that name in ``out``.
+        resumable: keep the checkpoint's whole training state (optimizer, RNG, rollout and env
+            state), so that the entry can be trained further (``benchmarks/stage.py``), at about
+            four times the size.
+        stages: the training stages so far (``benchmarks/stage.py``'s records), kept in the card.
 
     Raises:
         AmorError: a bad name, an existing entry (without ``replace``), a missing run, checkpoint,
@@ -169,7 +175,8 @@ def export_pretrained(
     policy = run.policy_of(ckpt)
     dataset = run.dataset_path()  # checked: one error naming the run's config key if it moved
     config = run.config
-    stripped = strip_trainer_state(ckpt.trainer)
+    kept = ckpt.trainer if resumable else strip_trainer_state(ckpt.trainer)
+    kept_env = ckpt.env if resumable else None
     meta = {k: v for k, v in ckpt.meta.items() if k != "iteration"}
 
     out.mkdir(parents=True, exist_ok=True)
@@ -179,7 +186,7 @@ def export_pretrained(
             shutil.copyfile(dataset, tmp / DATASET_FILE)
             config = dataclasses.replace(config, env=dataclasses.replace(config.env, dataset=DATASET_FILE))
         atomic_write_text(tmp / CONFIG_FILE, to_toml(config))
-        save_checkpoint(tmp / CHECKPOINT_DIR, ckpt.iteration, meta, stripped, None)
+        save_checkpoint(tmp / CHECKPOINT_DIR, ckpt.iteration, meta, kept, kept_env)
         if run.metrics_path.is_file():
             shutil.copyfile(run.metrics_path, tmp / "metrics.csv")
         copied = []
@@ -188,6 +195,7 @@ def export_pretrained(
             shutil.copyfile(fig, tmp / "figures" / fig.name)
             copied.append(f"figures/{fig.name}")
         card = _card(run, ckpt, name, description, command, commit, notes, copied, dataset, tmp)
+        card["resumable"], card["stages"] = resumable, list(stages)
         atomic_write_text(tmp / pretrained.CARD_FILE, json.dumps(card, indent=2) + "\n")
         atomic_write_text(tmp / "README.md", card_markdown(card))
         check = RunDir(tmp)
@@ -272,8 +280,40 @@ def card_markdown(card: dict[str, Any]) -> str:
     ref = f"pretrained:{card['name']}"
     lines += ["", "Use it wherever a run directory goes:", "", "```bash"]
     lines += [f"amorctl pareto {ref}", f"amorctl tune {ref}", f"amorctl evaluate {ref}", "```"]
+    lines += stage_table(card.get("stages") or [])
     for fig in card.get("figures", []):
         lines += ["", f"![{fig}]({fig})"]
     if card.get("notes"):
         lines += ["", card["notes"]]
     return "\n".join(lines) + "\n"
+
+
+def stage_table(stages: Sequence[dict[str, Any]]) -> list[str]:
+    """Markdown lines of the card's training stages (``benchmarks/stage.py``); none without."""
+    if not stages:
+        return []
+    lines = [
+        "",
+        "Training stages (resume with `python benchmarks/stage.py --run NAME --minutes M`):",
+        "",
+        "| stage | commit | machine | wall clock (min) | env steps | iterations | cumulative env steps | "
+        "evaluation at its end (uniform w: survival, joint MAE per motion family) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for st in stages:
+        evaluation = "; ".join(
+            f"{fam} {v['survival']:.0%}, {v['joint_mae_deg']:.1f}°"
+            for fam, v in (st.get("evaluation") or {}).items()
+        )
+        cells = (
+            st["stage"],
+            str(st["commit"])[:10],
+            st["machine"],
+            f"{st['wall_clock_s'] / 60:.1f}",
+            f"{st['env_steps']:,}",
+            f"{st['iterations']:,}",
+            f"{st['cumulative']['env_steps']:,}",
+            evaluation or "–",
+        )
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return lines

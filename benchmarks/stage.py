@@ -1,0 +1,250 @@
+"""Train a shipped run one stage further (docs/train.md, "Training in stages").
+
+A long run is trained in stages of at most ``--minutes`` of wall clock each, on any machine. A
+stage copies the resumable entry ``SHELF/NAME`` (``amorctl runs export-pretrained --resumable``)
+into ``WORK/NAME``, continues its training with the run's own config (settings never change
+between stages: a stage takes no training options), evaluates the policy under uniform ``w`` per
+motion family (survival over full episodes, joint MAE), and writes the entry back (built aside,
+then swapped in) with the stage recorded on its card: commit, machine, wall clock, env steps and
+iterations of the stage, the cumulative totals, the evaluation; and a figure of the evaluations
+against cumulative env steps. A stage stopped with Ctrl-C ends like one that ran out of time (the
+checkpoint it reached is written back, marked ``interrupted``).
+
+The first stage creates the run from a preset (``--preset``, ``--character``, ``--dataset``,
+``--set SECTION.KEY=VALUE``):
+
+    python benchmarks/stage.py --run biped20-repertoire --minutes 150 --preset science --character biped20
+    python benchmarks/stage.py --run biped20-repertoire --minutes 150        # every later stage
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from science import config_setting
+from science_runs import machine
+
+from amorctl.analysis.tracking_metrics import evaluate_setting
+from amorctl.core.config import TrainConfig, load_config, load_preset, override, to_toml
+from amorctl.core.errors import AmorError
+from amorctl.core.files import atomic_write_text
+from amorctl.plugins.backends.host import load_library
+from amorctl.train import pretrained
+from amorctl.train.episode_stats import clip_family
+from amorctl.train.loop import train_run
+from amorctl.train.pretrained_export import DATASET_FILE, export_pretrained, git_commit
+from amorctl.train.rundir import CONFIG_FILE, RunDir
+
+#: Iterations a stage may run at most (the wall clock ends it first).
+OPEN_ENDED = 100_000_000
+FIGURE = "stages.png"
+
+
+def first_config(args: argparse.Namespace) -> TrainConfig:
+    """The new run's config: ``--preset`` (or ``--config``) with ``--character``, ``--dataset`` and
+    ``--set``."""
+    config = load_config(Path(args.config)) if args.config else load_preset(args.preset)
+    if args.character:
+        config = override(config, env__character=args.character)
+    if args.dataset:
+        config = override(config, env__dataset=str(Path(args.dataset).resolve()))
+    for key, value, _text in args.set:
+        config = override(config, **{key: value})
+    return config
+
+
+def work_copy(entry: Path, work: Path) -> TrainConfig:
+    """Copy the entry into ``work`` (replacing an older copy); the run's config, its dataset
+    pointing at the copy."""
+    if work.exists():
+        shutil.rmtree(work)
+    shutil.copytree(entry, work)
+    for name in (pretrained.CARD_FILE, "README.md"):
+        (work / name).unlink(missing_ok=True)
+    config = load_config(work / CONFIG_FILE)
+    if config.env.dataset == DATASET_FILE:  # the entry's own copy (its SHA-256 is checked on resume)
+        config = override(config, env__dataset=str((work / DATASET_FILE).resolve()))
+        atomic_write_text(work / CONFIG_FILE, to_toml(config))
+    return config
+
+
+def evaluate_families(run: RunDir, episodes: int, seed: int) -> dict[str, dict[str, float]]:
+    """Survival and joint MAE under uniform ``w``, per motion family ({} for envs without clips)."""
+    config = run.config
+    if config.env.kind != "tracking":
+        return {}
+    clips = [c.name for c in load_library(config.env.character, run.dataset_path()).clips]
+    policy = run.policy()
+    uniform = np.full(len(policy.objectives), 1.0 / len(policy.objectives))
+    result = evaluate_setting(
+        policy, config, uniform, label="uniform", motions=clips, episodes=episodes, seed=seed
+    )
+    families: dict[str, list[dict[str, Any]]] = {}
+    for clip, metrics in result.per_motion.items():
+        families.setdefault(clip_family(clip), []).append(metrics)
+    return {
+        family: {
+            "survival": sum(float(m["survival_rate"]) for m in rows) / len(rows),
+            "joint_mae_deg": sum(float(m["joint_mae_deg"]) for m in rows) / len(rows),
+        }
+        for family, rows in families.items()
+    }
+
+
+def plot_stages(stages: list[dict[str, Any]], path: Path) -> bool:
+    """Survival and joint MAE per family against cumulative env steps; False without matplotlib
+    or evaluations."""
+    points = [(s["cumulative"]["env_steps"], s["evaluation"]) for s in stages if s.get("evaluation")]
+    if not points:
+        return False
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    fig, (ax_s, ax_m) = plt.subplots(1, 2, figsize=(11, 4))
+    for family in dict.fromkeys(f for _, ev in points for f in ev):
+        xs = [x / 1e6 for x, ev in points if family in ev]
+        ax_s.plot(xs, [ev[family]["survival"] for _, ev in points if family in ev], marker="o", label=family)
+        ax_m.plot(
+            xs, [ev[family]["joint_mae_deg"] for _, ev in points if family in ev], marker="o", label=family
+        )
+    ax_s.set(xlabel="cumulative env steps (M)", ylabel="survival over the episode", ylim=(-0.02, 1.02))
+    ax_m.set(xlabel="cumulative env steps (M)", ylabel="joint MAE (deg)")
+    for ax in (ax_s, ax_m):
+        ax.grid(alpha=0.3)
+    ax_s.legend(fontsize=7, ncol=2)
+    fig.suptitle("training stages: evaluation under uniform w at the end of each stage")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def stage(args: argparse.Namespace) -> dict[str, Any]:
+    """Run one stage; returns its card record."""
+    if not pretrained.NAME_RE.match(args.run):
+        raise AmorError(f"--run {args.run!r}: use lowercase letters, digits, '.', '_' or '-'")
+    entry, work = Path(args.shelf) / args.run, Path(args.work) / args.run
+    stages: list[dict[str, Any]] = []
+    if entry.exists():
+        card = pretrained.read_card(entry)
+        if not card.get("resumable"):
+            raise AmorError(
+                f"{entry}: not a resumable entry (export it with `runs export-pretrained --resumable`)"
+            )
+        if args.preset or args.config or args.set or args.character or args.dataset:
+            raise AmorError(
+                f"{entry} exists: a later stage continues with the run's own config "
+                "(--preset, --config, --character, --dataset and --set only start a run)"
+            )
+        stages = list(card.get("stages") or [])
+        config = work_copy(entry, work)
+        resume = True
+    else:
+        if not (args.preset or args.config):
+            raise AmorError(f"{entry}: no such entry; the first stage needs --preset or --config")
+        if work.exists():
+            shutil.rmtree(work)
+        config = first_config(args)
+        resume = False
+    before = RunDir(work).checkpoint().trainer.meta if resume else {}
+    start_iteration, start_steps = int(before.get("iteration", 0)), int(before.get("env_steps", 0))
+    config = override(config, run__iterations=start_iteration + (args.max_iterations or OPEN_ENDED))
+    began = time.perf_counter()
+    limit = args.minutes * 60.0
+    result = train_run(config, work, resume=resume, stop_when=lambda _m: time.perf_counter() - began > limit)
+    wall = time.perf_counter() - began
+    run = RunDir.open(work)
+    after = run.checkpoint().trainer.meta
+    evaluation = evaluate_families(run, args.eval_episodes, args.eval_seed)
+    previous = stages[-1]["cumulative"] if stages else {"env_steps": 0, "iterations": 0, "wall_clock_s": 0.0}
+    record = {
+        "stage": len(stages) + 1,
+        "commit": git_commit(Path.cwd()),
+        "machine": machine(),
+        "wall_clock_s": round(wall, 1),
+        "env_steps": int(after["env_steps"]) - start_steps,
+        "iterations": int(after["iteration"]) - start_iteration,
+        "cumulative": {
+            "env_steps": int(after["env_steps"]),
+            "iterations": int(after["iteration"]),
+            "wall_clock_s": round(previous["wall_clock_s"] + wall, 1),
+        },
+        "interrupted": bool(result.interrupted),
+        "evaluation": evaluation,
+        "evaluation_protocol": f"uniform w, {args.eval_episodes} episodes per clip, seed {args.eval_seed}",
+    }
+    stages.append(record)
+    figures = [work / FIGURE] if plot_stages(stages, work / FIGURE) else []
+    total = record["cumulative"]
+    export_pretrained(
+        work,
+        args.run,
+        args.shelf,
+        command=f"python benchmarks/stage.py --run {args.run} --minutes {args.minutes:g}",
+        description=args.description or f"{config.env.character or config.env.kind} trained in stages",
+        notes=f"{len(stages)} stages, {total['env_steps']:,} env steps, {total['wall_clock_s'] / 60:.0f} min",
+        figures=figures,
+        replace=True,
+        resumable=True,
+        stages=stages,
+    )
+    return record
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--run", required=True, help="the entry's name (pretrained:NAME)")
+    parser.add_argument("--minutes", type=float, required=True, help="wall clock of this stage's training")
+    parser.add_argument("--shelf", default="amorctl/pretrained", help="folder holding the entry")
+    parser.add_argument("--work", default="runs/stages", help="folder of the working copies")
+    parser.add_argument("--preset", default="", help="first stage: the preset to start from")
+    parser.add_argument("--config", default="", help="first stage: a config file instead of a preset")
+    parser.add_argument("--character", default="", help="first stage: the character")
+    parser.add_argument("--dataset", default="", help="first stage: the clips (default: the built-in set)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        type=config_setting,
+        metavar="SECTION.KEY=VALUE",
+        help="first stage",
+    )
+    parser.add_argument("--description", default="", help="one line for the card")
+    parser.add_argument("--max-iterations", type=int, default=0, help="also end the stage after N iterations")
+    parser.add_argument("--eval-episodes", type=int, default=8, help="episodes per clip at the stage's end")
+    parser.add_argument("--eval-seed", type=int, default=1)
+    args = parser.parse_args(argv)
+    try:
+        record = stage(args)
+    except AmorError as err:  # one line, as amorctl's commands do (AMORCTL_DEBUG=1: the traceback)
+        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(err.exit_code) from None
+    total = record["cumulative"]
+    print(
+        f"stage {record['stage']}: {record['iterations']:,} iterations, {record['env_steps']:,} env steps in "
+        f"{record['wall_clock_s'] / 60:.1f} min; in all {total['iterations']:,} iterations, "
+        f"{total['env_steps']:,} env steps"
+    )
+    for family, ev in record["evaluation"].items():
+        print(f"  {family}: survival {ev['survival']:.0%}, joint MAE {ev['joint_mae_deg']:.1f}°")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""benchmarks/stage.py: a run trained in stages through a resumable pretrained entry continues
+exactly where the last stage stopped, and its card records every stage."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import stage as stage_script
+
+from amorctl.core.config import TrainConfig, merge, to_toml
+from amorctl.envs.synthetic import synthetic_library
+from amorctl.motion.dataset import write_dataset
+from amorctl.registry import get_registry
+from amorctl.train.checkpoint import load_checkpoint
+from amorctl.train.loop import train_run
+from amorctl.train.rundir import RunDir
+
+
+def tiny_config(tmp_path: Path) -> TrainConfig:
+    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
+    lib = dataclasses.replace(lib, clips=tuple(lib.clips))
+    write_dataset(tmp_path / "ds.mcap", lib)
+    return merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 4, "checkpoint_every": 1, "tensorboard": False},
+            "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
+                    "num_envs": 4, "episode_seconds": 0.2},
+            "network": {"actor_hidden": [16], "critic_hidden": [16]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 2, "precision": "fp32"},
+        },
+        "test",
+    )  # fmt: skip
+
+
+def run_stage(tmp_path: Path, *extra: str) -> None:
+    stage_script.main(
+        ["--run", "tiny", "--minutes", "5", "--shelf", str(tmp_path / "shelf"),
+         "--work", str(tmp_path / "work"), "--max-iterations", "2", "--eval-episodes", "1", *extra]
+    )  # fmt: skip
+
+
+def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, capsys) -> None:
+    config = tiny_config(tmp_path)
+    (tmp_path / "tiny.toml").write_text(to_toml(config))
+    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"))
+    run_stage(tmp_path)
+    out = capsys.readouterr().out
+    assert "stage 1: 2 iterations" in out and "stage 2: 2 iterations" in out
+
+    entry = tmp_path / "shelf" / "tiny"
+    card = json.loads((entry / "card.json").read_text())
+    assert card["resumable"] and [s["stage"] for s in card["stages"]] == [1, 2]
+    first, second = card["stages"]
+    assert (first["iterations"], second["iterations"], second["cumulative"]["iterations"]) == (2, 2, 4)
+    assert second["cumulative"]["env_steps"] == first["env_steps"] + second["env_steps"] == 4 * 4 * 4
+    assert second["cumulative"]["wall_clock_s"] == pytest.approx(
+        first["wall_clock_s"] + second["wall_clock_s"]
+    )
+    for st in card["stages"]:
+        assert st["commit"] is not None and "cores" in st["machine"]
+        assert st["evaluation"]  # one entry per motion family of the clips
+        for ev in st["evaluation"].values():
+            assert 0.0 <= ev["survival"] <= 1.0 and ev["joint_mae_deg"] > 0
+    assert "Training stages" in (entry / "README.md").read_text()
+    assert (entry / "figures" / "stages.png").is_file()
+    assert RunDir.open(entry).config.env.dataset == "dataset.mcap"  # the entry is self-contained
+
+    # the same 4 iterations in one go: the staged run's networks and optimizer are identical
+    train_run(config, tmp_path / "straight")
+    straight = load_checkpoint(tmp_path / "straight/checkpoints/iter_000004.json").trainer.arrays
+    staged = load_checkpoint(entry / "checkpoints/iter_000004.json").trainer.arrays
+    for key in ("actor.net.0.weight", "critic.net.0.weight", "actor.log_std"):
+        np.testing.assert_array_equal(staged[key], straight[key], err_msg=key)
+    assert any(k.startswith("optimizer.") for k in staged)  # resumable: the training state is kept
+
+
+def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, capsys) -> None:
+    config = tiny_config(tmp_path)
+    (tmp_path / "tiny.toml").write_text(to_toml(config))
+    with pytest.raises(SystemExit):
+        run_stage(tmp_path)  # no entry and nothing to start from
+    assert "the first stage needs --preset or --config" in capsys.readouterr().err
+    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"))
+    with pytest.raises(SystemExit):
+        run_stage(tmp_path, "--set", "ppo.entropy_coef=0.01")
+    assert "continues with the run's own config" in capsys.readouterr().err
+    card_path = tmp_path / "shelf" / "tiny" / "card.json"
+    card = json.loads(card_path.read_text())
+    card_path.write_text(json.dumps({**card, "resumable": False}))
+    with pytest.raises(SystemExit):
+        run_stage(tmp_path)
+    assert "not a resumable entry" in capsys.readouterr().err
