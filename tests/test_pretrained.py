@@ -90,6 +90,10 @@ def test_runs_list_pretrained_and_local(shelf: Path, tracking_run: Path, capsys)
     assert "tiny" in names
     tiny = doc["pretrained"][names.index("tiny")]
     assert tiny["reference"] == "pretrained:tiny" and tiny["command"] == "pytest fixture"
+    assert tiny["motions"] and tiny["resumable"] is False and tiny["stages"] == []
+    code, out, err = run_cli(capsys, "runs", "list", "--pretrained")
+    assert code == 0, err
+    assert "motions" in out and "survival" in out and "pytest fixture" in out
     code, out, err = run_cli(capsys, "runs", "list", str(tracking_run.parent), "--json")
     assert code == 0, err
     runs = json.loads(out)["runs"]

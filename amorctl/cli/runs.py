@@ -67,6 +67,26 @@ def local_runs(folder: Path) -> list[dict[str, Any]]:
     return [r for r in rows if r is not None]
 
 
+def _families(motions: list[str]) -> str:
+    """``walk, walker, run`` from clip names (their families, in order)."""
+    from amorctl.train.episode_stats import clip_family
+
+    return ", ".join(dict.fromkeys(clip_family(m) for m in motions))
+
+
+def _headline(card: dict[str, Any]) -> str:
+    """The entry's headline figures: its last stage's evaluation (uniform ``w``, per family
+    averaged), else the last training iteration's survival."""
+    stages = card.get("stages") or []
+    evaluation = stages[-1].get("evaluation") if stages else None
+    if evaluation:
+        survival = sum(v["survival"] for v in evaluation.values()) / len(evaluation)
+        mae = sum(v["joint_mae_deg"] for v in evaluation.values()) / len(evaluation)
+        return f"survival {survival:.0%}, joint MAE {mae:.1f}° (uniform w, per family)"
+    value = (card.get("summary") or {}).get("episode/survival")
+    return "–" if value is None else f"survival {value:.0%} (training)"
+
+
 @app.command("list")
 def list_runs(
     folder: Annotated[Path, typer.Argument(help="Folder of run directories (or one run) to list.")] = Path(
@@ -96,23 +116,30 @@ def list_runs(
             )
             return
         table = Table(title="Pretrained runs (use as RUN: pretrained:<name>)")
-        for col in ("name", "character", "iteration", "env steps", "wall time", "trained by", "code"):
+        for col in ("name", "character", "motions", "env steps", "stages", "wall time", "measured"):
             table.add_column(col, overflow="fold")
         for e in found:
             c = e.card
+            motions = c.get("motions")
             table.add_row(
                 e.name,
                 str(c.get("character")),
-                str(c.get("iteration")),
+                "–" if not motions else f"{len(motions)} ({_families(motions)})",
                 f"{c.get('env_steps', 0):,}",
+                str(len(c.get("stages") or [])) if c.get("resumable") else "–",
                 _minutes(c.get("wall_time_s")),
-                c.get("command") or "–",
-                (c.get("commit") or "–")[:12],
+                _headline(c),
             )
         console.print(table)
         for e in found:
-            if e.card.get("description"):
-                console.print(f"{e.reference}: {e.card['description']}", highlight=False)
+            c = e.card
+            commit = (c.get("commit") or "an unrecorded commit")[:12]
+            console.print(
+                f"{e.reference}: {c.get('description') or '(no description)'}; trained by "
+                f"`{c.get('command') or 'not recorded'}` at {commit}",
+                highlight=False,
+                soft_wrap=True,
+            )
         return
     rows = local_runs(folder)
     if json_out:

@@ -41,6 +41,7 @@ CARD_KEYS = (
     "env_kind",
     "backend",
     "objectives",
+    "motions",
     "iteration",
     "env_steps",
     "episodes",
@@ -53,6 +54,8 @@ CARD_KEYS = (
     "summary",
     "figures",
     "notes",
+    "resumable",
+    "stages",
 )
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 

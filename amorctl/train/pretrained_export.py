@@ -242,6 +242,7 @@ def _card(
         "env_kind": cfg.env.kind,
         "backend": cfg.run.backend,
         "objectives": list(ckpt.meta.get("objectives", [])),
+        "motions": _motions(cfg, dataset),
         "iteration": ckpt.iteration,
         "env_steps": int(tm.get("env_steps", 0)),
         "episodes": int(tm.get("episodes", 0)),
@@ -255,6 +256,15 @@ def _card(
         "figures": figures,
         "notes": notes,
     }
+
+
+def _motions(config: Any, dataset: Path | None) -> list[str] | None:
+    """The clip names a tracking run trained on (None for other envs)."""
+    if config.env.kind != "tracking":
+        return None
+    from amorctl.plugins.backends.host import load_library
+
+    return [c.name for c in load_library(config.env.character, dataset).clips]
 
 
 def card_markdown(card: dict[str, Any]) -> str:
