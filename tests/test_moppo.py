@@ -341,4 +341,6 @@ def test_science_sc_preset_is_science_plus_the_survival_channel() -> None:
     science, sc = load_preset("science"), load_preset("science_sc")
     assert sc.ppo.survival_channel and sc.ppo.return_norm == "value+advantage"
     assert dataclasses.replace(sc, ppo=science.ppo) == science
-    assert dataclasses.replace(sc.ppo, survival_channel=False, return_norm="value") == science.ppo
+    # science_sc keeps the entropy coefficient it was measured with (0); science has 0.005 since
+    assert sc.ppo.entropy_coef == 0.0
+    assert dataclasses.replace(sc.ppo, survival_channel=False, entropy_coef=0.005) == science.ppo

@@ -35,6 +35,7 @@ from amorctl.outputs.mcap_log import (
     write_rollout_mcap,
 )
 from amorctl.outputs.plots import plot_rollout
+from amorctl.tune.live import SHUTDOWN_TIMEOUT_S
 from amorctl.tune.session import PinnedMotion, run_tune
 
 torch.set_num_threads(1)
@@ -546,8 +547,8 @@ def test_live_page_in_headless_chromium(
             browser.close()
     finally:
         proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=30)
+        try:  # the page's own shutdown is bounded: 10 s for the loop + SHUTDOWN_TIMEOUT_S for threads
+            proc.wait(timeout=10 + SHUTDOWN_TIMEOUT_S + 30)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()

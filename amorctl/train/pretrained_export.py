@@ -262,9 +262,11 @@ def _motions(config: Any, dataset: Path | None) -> list[str] | None:
     """The clip names a tracking run trained on (None for other envs)."""
     if config.env.kind != "tracking":
         return None
-    from amorctl.plugins.backends.host import load_library
+    from amorctl.motion.cache import default_dataset
+    from amorctl.motion.dataset import load_dataset
 
-    return [c.name for c in load_library(config.env.character, dataset).clips]
+    path = Path(dataset) if dataset else default_dataset(config.env.character)
+    return [c.name for c in load_dataset(path).clips]
 
 
 def card_markdown(card: dict[str, Any]) -> str:
