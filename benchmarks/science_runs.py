@@ -8,14 +8,13 @@ import datetime as dt
 import itertools
 import math
 import os
-import platform
 import subprocess
 import time
 from pathlib import Path
 from typing import Any
 
 from amorctl.core.config import TrainConfig, override
-from amorctl.sim.cpus import available_cpus
+from amorctl.sim.cpus import available_cpus, cpu_description
 from amorctl.train.loop import train_run
 from amorctl.train.rundir import RunDir
 
@@ -58,18 +57,10 @@ def git_commit() -> str:
 
 
 def machine() -> str:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     import torch
 
     return (
-        f"{model or platform.processor()}, {os.cpu_count()} cores, this process pinned to "
+        f"{cpu_description()}, {os.cpu_count()} cores, this process pinned to "
         f"{available_cpus()} (affinity {sorted(os.sched_getaffinity(0))}), torch threads "
         f"{torch.get_num_threads()}, load average at start {os.getloadavg()[0]:.2f}"
     )

@@ -20,10 +20,8 @@ Usage: python benchmarks/train_throughput.py [--presets quick paper] [--iteratio
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -31,23 +29,7 @@ import torch
 from amorctl.core.config import load_preset, override
 from amorctl.envs.factory import make_env
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
-
-CPU_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
-
-
-def cpu_line() -> str:
-    """The CPU model and which of :data:`CPU_FLAGS` it has (Linux ``/proc/cpuinfo``)."""
-    model, flags = platform.processor() or "unknown CPU", set()
-    info = Path("/proc/cpuinfo")
-    if info.is_file():
-        for line in info.read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                model = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-    have = [f for f in CPU_FLAGS if f in flags]
-    return f"{model}; {', '.join(have) or 'none of ' + ', '.join(CPU_FLAGS)}"
+from amorctl.sim.cpus import cpu_description
 
 
 def env_only(env, steps: int) -> float:
@@ -101,7 +83,7 @@ def main() -> None:
     modes = {"fp32": [False], "bf16": [True], "both": [False, True]}[args.precision]
     if not bf16_supported():
         modes = [m for m in modes if not m] or [False]
-    print(f"CPU: {cpu_line()}; torch threads {torch.get_num_threads()}")
+    print(f"CPU: {cpu_description()}; torch threads {torch.get_num_threads()}")
     for preset in args.presets:
         for bf16 in modes:
             r = measure(preset, bf16, args.iterations, args.num_envs)

@@ -288,8 +288,8 @@ def test_toy_run_with_adaptive_weights_resumes_bit_exactly(tmp_path: Path) -> No
 
 
 def test_levers_are_refused_where_they_are_not_implemented(tmp_path: Path) -> None:
-    from amorctl.core.config import check_backend_levers, levers_in_use
     from amorctl.core.errors import AmorError
+    from amorctl.core.levers import check_backend_levers, levers_in_use
     from amorctl.registry import get_registry
     from amorctl.train.loop import train_run
 

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from amorctl.core.config import TrainConfig, check_backend_levers, override
+from amorctl.core.config import TrainConfig, override
 from amorctl.core.errors import AmorError
 from amorctl.core.gae import gae
+from amorctl.core.levers import check_backend_levers
 from amorctl.envs.toy import ToyTradeoffEnv
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
 from amorctl.plugins.backends.torch_cpu.survival_channel import (

@@ -27,6 +27,7 @@ from amorctl.core.errors import AmorError, AmorWarning
 from amorctl.core.vecenv import VectorEnv
 from amorctl.core.weights import parse_weight_pairs
 from amorctl.envs.factory import TOY_CONTROL_HZ
+from amorctl.sim.cpus import available_cpus, cpu_description
 from amorctl.train import distributed
 from amorctl.train.loop import train_run
 from amorctl.train.metrics import family_survival
@@ -57,6 +58,8 @@ class _Display(TrainingView):
             start,
             f"[bold]amorctl train[/bold] {where} · backend {c.run.backend} · {c.env.num_envs} envs · "
             f"obs {env.obs_dim} · actions {env.action_dim} · {len(names)} objectives · {mode}\n"
+            f"CPU: {cpu_description()} · {available_cpus()} cores for this process · "
+            f"precision {c.ppo.precision} (the one in use is shown each iteration)\n"
             f"run directory: {self.out}" + (f" (resuming at iteration {start})" if start else ""),
         )
 

@@ -25,6 +25,7 @@ from typing import Any, get_args, get_origin, get_type_hints
 import tomlkit
 
 from amorctl.core.errors import AmorError
+from amorctl.core.levers import lever_checks
 from amorctl.core.weights import parse_weight_pairs
 
 if sys.version_info >= (3, 11):
@@ -113,6 +114,16 @@ class EnvConfig:
     )
     gym_id: str = _doc("", "Gymnasium / MO-Gymnasium id with a vector reward (kind=gym)")
     fixed_weights: str = _doc("", "empty: w ~ Dirichlet(1) per episode (MOPPO); else one fixed w (PPO)")
+    adaptive_starts: float = _doc(
+        0.0,
+        "share of random episode starts drawn where the policy falls, per clip and phase bin "
+        "(kind=tracking; 0 = uniform RSI, the paper)",
+        min=0,
+        max=1,
+    )
+    start_bin_seconds: float = _doc(
+        1.0, "length of the phase bins adaptive_starts counts falls in", gt=0, max=60
+    )
 
 
 @dataclass(frozen=True)
@@ -358,77 +369,13 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
             f"[ppo] num_minibatches = {p.num_minibatches} exceeds the batch size ({batch})",
         ),
     ]
-    checks += _lever_checks(config)
+    checks += lever_checks(config)
     for ok, message in checks:
         if not ok:
             raise AmorError(f"{source}: {message}")
     if e.fixed_weights and e.fixed_weights.strip().lower() != "uniform":
         parse_weight_pairs(e.fixed_weights, source=f"{source}: [env] fixed_weights")
     return config
-
-
-#: Training levers (docs/moppo.md, "Levers") a backend may implement; it declares which in
-#: ``BackendSpec.levers``. The paper's MOPPO needs none of them.
-LEVERS: tuple[str, ...] = ("return_norm", "survival_channel", "weight_sampling", "adaptive_weights")
-#: Env kinds whose objectives share a survival bonus the trainer can split off.
-SURVIVAL_BONUS_KINDS: tuple[str, ...] = ("tracking", "gym")
-#: Env kinds whose state (and so an adaptive weight sampler's) is checkpointed.
-SNAPSHOT_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth")
-
-
-def _lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
-    """The training levers' rules that do not depend on the backend: the weight-sampling shares
-    fit in one, and each lever's env kinds (:func:`check_backend_levers` asks the backend)."""
-    w, p, kind = config.weights, config.ppo, config.env.kind
-    shares = w.corner_fraction + w.edge_fraction + w.axis_fraction + w.adaptive_fraction
-    return [
-        (shares <= 1 + 1e-9, f"[weights] corner + edge + axis + adaptive fractions = {shares:g} exceed 1"),
-        (
-            w.adaptive_fraction == 0 or kind in SNAPSHOT_KINDS,
-            f"[weights] adaptive_fraction needs an env whose state is checkpointed (env.kind in "
-            f"{', '.join(map(repr, SNAPSHOT_KINDS))}; got {kind!r})",
-        ),
-        (
-            p.survival_weight == 1.0 or p.survival_channel,
-            f"[ppo] survival_weight = {p.survival_weight:g} needs survival_channel = true",
-        ),
-        (
-            not p.survival_channel or kind in SURVIVAL_BONUS_KINDS,
-            f"[ppo] survival_channel = true needs objectives that share a survival bonus (env.kind in "
-            f"{', '.join(map(repr, SURVIVAL_BONUS_KINDS))}; got {kind!r})",
-        ),
-    ]
-
-
-def levers_in_use(config: TrainConfig) -> dict[str, str]:
-    """The levers ``config`` turns on that its backend must implement: {lever: the setting asking
-    for it}. ``[weights]`` draws need the backend only for the tracking env (the backend makes it);
-    the toy and gym envs draw them themselves, and adaptive draws need the trainer's feedback."""
-    w, p = config.weights, config.ppo
-    used: dict[str, str] = {}
-    if p.return_norm != "off":
-        used["return_norm"] = f"[ppo] return_norm = {p.return_norm!r}"
-    if p.survival_channel:
-        used["survival_channel"] = "[ppo] survival_channel = true"
-    if not w.plain and config.env.kind == "tracking":
-        used["weight_sampling"] = "[weights] options other than the defaults"
-    if w.adaptive_fraction > 0:
-        used["adaptive_weights"] = f"[weights] adaptive_fraction = {w.adaptive_fraction:g}"
-    return used
-
-
-def check_backend_levers(config: TrainConfig, levers: frozenset[str], source: str = "config") -> None:
-    """Refuse a config whose levers its backend (``run.backend``, declaring ``levers``) lacks.
-
-    Raises:
-        AmorError: naming ``source``, the setting and the backend.
-    """
-    for lever, setting in levers_in_use(config).items():
-        if lever not in levers:
-            raise AmorError(
-                f"{source}: {setting} needs a backend that implements it; run.backend = "
-                f"{config.run.backend!r} does not (`amorctl plugins` lists each backend's levers)"
-            )
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -228,7 +228,7 @@ class ObjectiveSetSpec:
 class BackendSpec:
     """A backend plugin: ``make(**options)`` returns a :class:`~amorctl.core.contracts.Backend`.
 
-    ``levers`` names the training levers it implements (:data:`amorctl.core.config.LEVERS`); a
+    ``levers`` names the training levers it implements (:data:`amorctl.core.levers.LEVERS`); a
     config that turns on another is refused before training starts.
     """
 

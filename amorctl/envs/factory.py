@@ -43,6 +43,8 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
         if not config.weights.plain:  # the [weights] levers (a backend that declares them; config checks it)
             m = len(get_registry().objective_set(e.objective_set).objectives)
             options["weight_sampler"] = weight_sampler(config, m)
+        if e.adaptive_starts > 0:  # a lever too: only a backend that declares it gets here
+            options.update(adaptive_starts=e.adaptive_starts, start_bin_seconds=e.start_bin_seconds)
         env = backend.make_env(
             character=e.character,
             dataset=e.dataset or None,

@@ -28,6 +28,7 @@ from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
 from amorctl.core.weights import check_simplex_rows
+from amorctl.envs.start_sampling import StartSampler
 from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
@@ -61,6 +62,8 @@ class TrackingEnv:
         seed: seed of RSI, clip switches and weight sampling (``reset(seed)`` reseeds; [N] seeds
             give every env its own generator, :mod:`amorctl.core.env_random`).
         weight_sampler: how episodes draw ``w`` (default Dirichlet(1); docs/moppo.md, Levers).
+        adaptive_starts: share of random starts drawn where the policy falls, per clip and phase
+            bin of ``start_bin_seconds`` (:mod:`amorctl.envs.start_sampling`); 0 = plain RSI.
     """
 
     def __init__(
@@ -80,6 +83,8 @@ class TrackingEnv:
         env_clips: np.ndarray | None = None,
         seed: int | None = 0,
         weight_sampler: WeightSampler | None = None,
+        adaptive_starts: float = 0.0,
+        start_bin_seconds: float = 1.0,
     ) -> None:
         registry = None
         if isinstance(character, str) or isinstance(objective_set, str):
@@ -122,6 +127,10 @@ class TrackingEnv:
         self._init_reference(library, clips, env_clips)
         self._init_layout(library.latent_dim, m)
         self._init_state(seed)
+        self.start_sampler = None
+        if adaptive_starts > 0:
+            bin_frames = max(1, round(start_bin_seconds * library.fps))
+            self.start_sampler = StartSampler(self.clip_starts, self.clip_ends, bin_frames, adaptive_starts)
 
     def _init_reference(
         self, lib: MotionLibrary, clips: Sequence[int] | None, env_clips: np.ndarray | None
@@ -234,6 +243,8 @@ class TrackingEnv:
             terminated = fell | diverged
             rewards = self.objectives(inputs, (~terminated).astype(np.float64))
         rewards = np.where(diverged[:, None], 0.0, rewards).astype(np.float32)
+        if self.start_sampler is not None:
+            self.start_sampler.record(nxt[fell & ~diverged])
 
         self.episode_steps += 1
         truncated = (self.episode_steps >= self.max_episode_steps) & ~terminated
@@ -322,6 +333,8 @@ class TrackingEnv:
         }
         if self.weight_sampler.adaptive:
             meta["weight_sampler"] = self.weight_sampler.state()
+        if self.start_sampler is not None:
+            meta["start_sampler"] = self.start_sampler.state()
         return Snapshot(arrays, meta)
 
     def set_state(self, state: Snapshot) -> None:
@@ -353,6 +366,10 @@ class TrackingEnv:
         self.diverged_total = int(meta["diverged_total"])
         if self.weight_sampler.adaptive:
             self.weight_sampler.load_state(meta["weight_sampler"])
+        if self.start_sampler is not None:
+            if "start_sampler" not in meta:
+                raise AmorError("env snapshot has no adaptive-start state (saved without adaptive_starts)")
+            self.start_sampler.load_state(meta["start_sampler"])
 
     # --- internals --------------------------------------------------------------------------------
 
@@ -364,9 +381,15 @@ class TrackingEnv:
             clips = self.valid_clips[self._rand.integers(ids, len(self.valid_clips))]
         start, end = self.clip_starts[clips], self.clip_ends[clips]
         offset = 0 if at_start else self._rand.integers(ids, end - start - 1)
+        frames = start + offset
+        if not at_start and self.start_sampler is not None and self.env_clips is None:
+            chosen, hard_clips, hard_frames = self.start_sampler.draw(self._rand, ids, self.valid_clips)
+            clips, frames = np.array(clips), np.array(frames)  # writable copies
+            clips[chosen], frames[chosen] = hard_clips, hard_frames
+            end = self.clip_ends[clips]
         self.clip_id[ids] = clips
         self.clip_end[ids] = end
-        self.ref_idx[ids] = start + offset
+        self.ref_idx[ids] = frames
 
     def _reset_envs(self, ids: np.ndarray) -> None:
         """RSI and fresh weights for envs ``ids`` [k]."""

@@ -1,8 +1,34 @@
-"""How many CPU cores this process may use: the default thread count of the simulators."""
+"""How many CPU cores this process may use (the default thread count of the simulators), and
+which CPU they are (what throughput figures are quoted with)."""
 
 from __future__ import annotations
 
 import os
+import platform
+from pathlib import Path
+
+#: The instruction sets that decide network precision and speed on x86 (bf16 needs the last two).
+CPU_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_bf16")
+
+
+def cpu_description(info: Path = Path("/proc/cpuinfo")) -> str:
+    """``"<model>; <which of CPU_FLAGS it has>"`` from Linux ``/proc/cpuinfo`` (the model alone,
+    from :func:`platform.processor`, where there is no such file)."""
+    model, flags = platform.processor() or "unknown CPU", set()
+    try:
+        text = info.read_text() if info.is_file() else ""
+    except OSError:
+        text = ""
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() == "model name":
+            model = value.strip()
+        elif key.strip() == "flags":
+            flags = set(value.split())
+    if not text:
+        return model
+    have = [f for f in CPU_FLAGS if f in flags]
+    return f"{model}; {', '.join(have) or 'none of ' + ', '.join(CPU_FLAGS)}"
 
 
 def available_cpus() -> int:

@@ -29,11 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from amorctl.core.config import TrainConfig, check_backend_levers, to_toml
+from amorctl.core.config import TrainConfig, to_toml
 from amorctl.core.contracts import Snapshot, SnapshotEnv, Trainer, trainer_world_size
 from amorctl.core.dir_lock import dir_lock
 from amorctl.core.errors import AmorError
 from amorctl.core.files import StorageError, atomic_write_text, check_writable
+from amorctl.core.levers import check_backend_levers
 from amorctl.core.vecenv import VectorEnv, close_env, diverged_total, has_fused_rollout
 from amorctl.envs.factory import make_env
 from amorctl.registry import get_registry

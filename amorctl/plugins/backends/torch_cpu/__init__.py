@@ -13,9 +13,10 @@ from typing import Any
 import torch
 
 from amorctl.api import hookimpl
-from amorctl.core.config import LEVERS, TrainConfig
+from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.core.levers import LEVERS
 from amorctl.core.specs import BackendSpec
 from amorctl.core.vecenv import VectorEnv
 from amorctl.plugins.backends.host import build_tracking_env
