@@ -1,5 +1,5 @@
 """Where tracking episodes start: reference state initialization (RSI) biased toward the parts of
-the clips where the policy falls (``[env] adaptive_starts``; docs/environment.md, "Adaptive starts").
+the clips where the policy falls (``[env] adaptive_starts``; docs/environment.md, "Episodes").
 
 Plain RSI (the paper) picks a clip uniformly, then a frame uniformly within it, so a hard second
 of a long clip is visited as rarely as an easy one. :class:`StartSampler` splits every clip into
@@ -101,8 +101,9 @@ class StartSampler:
             return empty, empty, empty
         chosen = np.flatnonzero(pick)
         sub = np.asarray(ids)[chosen]
-        bins = np.minimum(np.searchsorted(np.cumsum(p), rand.random(sub), side="right"), self.num_bins - 1)
-        bins = _nearest_positive(bins, p)
+        cdf = np.cumsum(p)
+        cdf /= cdf[-1]  # ends at exactly 1: u < 1 never lands past the last bin with a fall
+        bins = np.searchsorted(cdf, rand.random(sub), side="right")
         frames = self.bin_lo[bins] + rand.integers(sub, self.bin_hi[bins] - self.bin_lo[bins])
         return chosen, self.bin_clip[bins], frames
 
@@ -123,13 +124,3 @@ class StartSampler:
                 "finite and >= 0)"
             )
         self.falls = falls
-
-
-def _nearest_positive(bins: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Bins moved off zero-probability entries (a uniform number of exactly a cumsum boundary)."""
-    positive = np.flatnonzero(p > 0)
-    bad = p[bins] <= 0
-    if bad.any():
-        bins = bins.copy()
-        bins[bad] = positive[np.minimum(np.searchsorted(positive, bins[bad]), len(positive) - 1)]
-    return bins
