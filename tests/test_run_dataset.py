@@ -224,7 +224,7 @@ def test_hlp_commands_take_the_runs_moved_dataset_with_data(
 
 def test_a_library_for_another_joint_order_names_the_first_difference() -> None:
     from amorctl.envs.synthetic import synthetic_library
-    from amorctl.envs.tracking_env import _check_library
+    from amorctl.envs.tracking_checks import check_library
     from amorctl.registry import get_registry
 
     ch = get_registry().character("biped20")
@@ -232,7 +232,7 @@ def test_a_library_for_another_joint_order_names_the_first_difference() -> None:
     names = list(lib.joint_names)
     names[1], names[2] = names[2], names[1]
     with pytest.raises(AmorError) as err:
-        _check_library(ch, dataclasses.replace(lib, joint_names=tuple(names)))
+        check_library(ch, dataclasses.replace(lib, joint_names=tuple(names)))
     assert str(err.value) == (
         f"motion library joints do not match the joints of character biped20: "
         f"#1 is {names[1]!r}, the character's is {names[2]!r}"

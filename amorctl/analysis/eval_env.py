@@ -17,6 +17,7 @@ import numpy as np
 from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import tracking_view
 from amorctl.core.errors import AmorError
+from amorctl.core.levers import TRAINING_ONLY_ENV
 from amorctl.core.vecenv import VectorEnv, close_env
 from amorctl.core.weights import sample_dirichlet, simplex_grid
 from amorctl.envs.factory import make_env
@@ -64,7 +65,7 @@ def make_eval_env(
         raise AmorError(f"--motion needs a motion-tracking run; this run's env is {config.env.kind!r}")
     cfg = dataclasses.replace(
         config,
-        env=dataclasses.replace(config.env, num_envs=int(num_envs)),
+        env=dataclasses.replace(config.env, num_envs=int(num_envs), **TRAINING_ONLY_ENV),
         run=dataclasses.replace(config.run, seed=int(seed)),
     )
     env = make_env(cfg)

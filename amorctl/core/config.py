@@ -124,6 +124,13 @@ class EnvConfig:
     start_bin_seconds: float = _doc(
         1.0, "length of the phase bins adaptive_starts counts falls in", gt=0, max=60
     )
+    termination_distance: float = _doc(
+        0.0,
+        "also end a training episode when an end effector (root-relative) or the root height is "
+        "farther than this from the reference, m (kind=tracking; 0 = falls only, the paper)",
+        min=0,
+        max=100,
+    )
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,11 @@ LEVERS: tuple[str, ...] = (
     "weight_sampling",
     "adaptive_weights",
     "adaptive_starts",
+    "termination_distance",
 )
+#: ``[env]`` fields that shape training episodes only. Evaluation, sweeps and tuning set them to 0,
+#: so every run is judged by the same episodes (falls end them; nothing else does).
+TRAINING_ONLY_ENV: dict[str, float] = {"adaptive_starts": 0.0, "termination_distance": 0.0}
 #: Env kinds whose objectives share a survival bonus the trainer can split off.
 SURVIVAL_BONUS_KINDS: tuple[str, ...] = ("tracking", "gym")
 #: Env kinds whose state (and so an adaptive weight sampler's) is checkpointed.
@@ -41,6 +45,10 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
         (
             config.env.adaptive_starts == 0 or kind == "tracking",
             f"[env] adaptive_starts needs the tracking env (env.kind = 'tracking'; got {kind!r})",
+        ),
+        (
+            config.env.termination_distance == 0 or kind == "tracking",
+            f"[env] termination_distance needs the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
         (
             p.survival_weight == 1.0 or p.survival_channel,
@@ -70,6 +78,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["adaptive_weights"] = f"[weights] adaptive_fraction = {w.adaptive_fraction:g}"
     if config.env.adaptive_starts > 0:
         used["adaptive_starts"] = f"[env] adaptive_starts = {config.env.adaptive_starts:g}"
+    if config.env.termination_distance > 0:
+        used["termination_distance"] = f"[env] termination_distance = {config.env.termination_distance:g}"
     return used
 
 

@@ -45,6 +45,8 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
             options["weight_sampler"] = weight_sampler(config, m)
         if e.adaptive_starts > 0:  # a lever too: only a backend that declares it gets here
             options.update(adaptive_starts=e.adaptive_starts, start_bin_seconds=e.start_bin_seconds)
+        if e.termination_distance > 0:  # a lever as well
+            options["termination_distance"] = e.termination_distance
         env = backend.make_env(
             character=e.character,
             dataset=e.dataset or None,

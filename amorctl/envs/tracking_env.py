@@ -4,7 +4,8 @@ N characters track clips of a :class:`MotionLibrary` in parallel. Every episode 
 reference-state initialization (RSI) at a random clip and time and draws ``w ~ Dirichlet(1)``
 (or uses the fixed weights it was given); the reference moves forward one frame per control step
 and jumps to the start of a new random clip when its clip ends, while ``w`` stays. An episode
-terminates when the character falls or its simulation diverges, and is truncated at
+terminates when the character falls, drifts farther from its reference than an optional
+``termination_distance``, or its simulation diverges, and is truncated at
 ``max_episode_steps``; envs reset themselves. Episodes: docs/environment.md; observation layout
 and action: docs/observations.md; rewards: the objective set (docs/objectives.md). The env is a
 :class:`amorctl.core.contracts.SnapshotEnv` (``get_state`` / ``set_state``), so tracking runs resume
@@ -25,10 +26,12 @@ from amorctl.core.errors import AmorError
 from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_dim, frame_features, split_frame
 from amorctl.core.observation import observation_layout
 from amorctl.core.specs import CharacterSpec, ObjectiveSetSpec
+from amorctl.core.termination import far_from_reference
 from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
 from amorctl.core.weights import check_simplex_rows
 from amorctl.envs.start_sampling import StartSampler
+from amorctl.envs.tracking_checks import check_clips, check_library, check_weights
 from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
 from amorctl.registry import get_registry
@@ -64,6 +67,8 @@ class TrackingEnv:
         weight_sampler: how episodes draw ``w`` (default Dirichlet(1); docs/moppo.md, Levers).
         adaptive_starts: share of random starts drawn where the policy falls, per clip and phase
             bin of ``start_bin_seconds`` (:mod:`amorctl.envs.start_sampling`); 0 = plain RSI.
+        termination_distance: also terminate when the tracking error exceeds this many metres
+            (:mod:`amorctl.core.termination`); 0 = off (the paper: falls only).
     """
 
     def __init__(
@@ -85,6 +90,7 @@ class TrackingEnv:
         weight_sampler: WeightSampler | None = None,
         adaptive_starts: float = 0.0,
         start_bin_seconds: float = 1.0,
+        termination_distance: float = 0.0,
     ) -> None:
         registry = None
         if isinstance(character, str) or isinstance(objective_set, str):
@@ -92,11 +98,13 @@ class TrackingEnv:
         self.character = registry.character(character) if isinstance(character, str) else character
         spec = registry.objective_set(objective_set) if isinstance(objective_set, str) else objective_set
         ch = self.character
-        _check_library(ch, library)
+        check_library(ch, library)
         if action_mode not in ("absolute", "residual"):
             raise AmorError(f"action_mode must be 'absolute' or 'residual', got {action_mode!r}")
         if max_episode_steps < 1:
             raise AmorError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        if not termination_distance >= 0:
+            raise AmorError(f"termination_distance must be >= 0 metres, got {termination_distance}")
         if any(int(o) < 0 for o in future_frames):
             raise AmorError(f"future_frames offsets must be >= 0, got {tuple(future_frames)}")
 
@@ -110,13 +118,14 @@ class TrackingEnv:
             high=np.asarray(self.objectives.high, dtype=np.float64),
             survival_bonus=survival_bonus_of(self.objectives),
         )
-        self.fixed_weights = None if fixed_weights is None else _check_weights(fixed_weights, m)
+        self.fixed_weights = None if fixed_weights is None else check_weights(fixed_weights, m)
         self.weight_sampler = weight_sampler or WeightSampler(m)
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
         self.action_mode = action_mode
         self.future_frames = tuple(int(o) for o in future_frames)
         self.fall_drop = float(fall_height_fraction) * ch.standing_height
+        self.termination_distance = float(termination_distance)
         self.sim = BatchSim(ch, n, nthread=nthread)
         self.dt = 1.0 / ch.control_hz
         jn, e = ch.num_joints, len(ch.end_effectors)
@@ -207,7 +216,8 @@ class TrackingEnv:
         """One control step; see :class:`amorctl.core.vecenv.VectorEnv` for the returned arrays.
 
         ``info`` holds ``final_obs`` [N, obs_dim], ``fell`` [N] bool (terminated by the fall
-        rule), ``diverged`` [N] bool (simulation blew up: terminated, rewards zeroed, env reset),
+        rule), ``far`` [N] bool (terminated by ``termination_distance``, not by a fall),
+        ``diverged`` [N] bool (simulation blew up: terminated, rewards zeroed, env reset),
         ``diverged_total`` (count since the last ``reset``) and ``clip_switched`` [N] bool.
         """
         actions = np.asarray(actions, dtype=np.float64)
@@ -239,12 +249,14 @@ class TrackingEnv:
         )
         with np.errstate(invalid="ignore", over="ignore"):
             fell = sim_frames[:, 0] < ref_frames[:, 0] - self.fall_drop
+            far = far_from_reference(inputs.sim, inputs.ref, self.termination_distance)
             diverged = out.diverged
-            terminated = fell | diverged
+            terminated = fell | far | diverged
             rewards = self.objectives(inputs, (~terminated).astype(np.float64))
         rewards = np.where(diverged[:, None], 0.0, rewards).astype(np.float32)
+        failed = (fell | far) & ~diverged
         if self.start_sampler is not None:
-            self.start_sampler.record(nxt[fell & ~diverged])
+            self.start_sampler.record(nxt[failed])
 
         self.episode_steps += 1
         truncated = (self.episode_steps >= self.max_episode_steps) & ~terminated
@@ -266,6 +278,7 @@ class TrackingEnv:
         info = {
             "final_obs": final_obs,
             "fell": fell & ~diverged,
+            "far": far & ~fell & ~diverged,
             "diverged": diverged,
             "diverged_total": self.diverged_total,
             "clip_switched": switched,
@@ -285,11 +298,11 @@ class TrackingEnv:
         lib = self.library
         self.from_start = bool(from_start)
         self.valid_clips = (
-            self.all_valid_clips if clips is None else _check_clips(np.asarray(clips, np.int64).ravel(), lib)
+            self.all_valid_clips if clips is None else check_clips(np.asarray(clips, np.int64).ravel(), lib)
         )
         self.env_clips = None
         if env_clips is not None:
-            per_env = _check_clips(np.asarray(env_clips, dtype=np.int64).ravel(), lib)
+            per_env = check_clips(np.asarray(env_clips, dtype=np.int64).ravel(), lib)
             if per_env.shape != (self.num_envs,):
                 raise AmorError(f"env_clips must have one clip per env ({self.num_envs}), got {per_env.size}")
             self.env_clips = per_env
@@ -449,49 +462,3 @@ class TrackingEnv:
         parts += [self.context_frames[np.minimum(nxt + o, last)] for o in self.future_frames]
         parts.append(self._weights[sel])
         return np.concatenate(parts, axis=-1, dtype=np.float32)
-
-
-def _check_weights(w: np.ndarray, m: int) -> np.ndarray:
-    w = np.asarray(w, dtype=np.float64).reshape(-1)
-    if w.shape != (m,):
-        raise AmorError(f"fixed weights must be {m} non-negative numbers summing to 1, got {w.tolist()}")
-    check_simplex_rows(w, "fixed weights")
-    return w.astype(np.float32)
-
-
-def _check_clips(clips: np.ndarray, lib: MotionLibrary) -> np.ndarray:
-    """Clip indices [k] that exist and have at least 2 frames; AmorError naming the bad one."""
-    if clips.size == 0:
-        raise AmorError("no clips to track: the clip selection is empty")
-    for c in np.unique(clips):
-        if not 0 <= c < len(lib.clips):
-            raise AmorError(f"clip index {int(c)} out of range (the library has {len(lib.clips)} clips)")
-        if lib.lengths[c] < 2:
-            raise AmorError(f"clip {lib.clips[c].name!r} has fewer than 2 frames; it cannot be tracked")
-    return clips
-
-
-def _first_difference(have: tuple[str, ...], want: tuple[str, ...]) -> str:
-    """Where two name lists first differ, e.g. ``"#3 is 'knee_l', the character's is 'hip_l'"``."""
-    for i, (a, b) in enumerate(zip(have, want, strict=False)):
-        if a != b:
-            return f"#{i} is {a!r}, the character's is {b!r}"
-    return f"the library has {len(have)}, the character {len(want)}"
-
-
-def _check_library(ch: CharacterSpec, lib: MotionLibrary) -> None:
-    if lib.character != ch.name:
-        raise AmorError(f"motion library is for character {lib.character!r}, not {ch.name!r}")
-    for what, have, want in (
-        ("joints", tuple(lib.joint_names), ch.joint_names()),
-        ("end effectors", tuple(lib.end_effectors), tuple(ch.end_effectors)),
-    ):
-        if have != want:
-            raise AmorError(
-                f"motion library {what} do not match the {what} of character {ch.name}: "
-                f"{_first_difference(have, want)}"
-            )
-    if lib.fps != ch.control_hz:
-        raise AmorError(
-            f"motion library is at {lib.fps} fps; character {ch.name!r} runs at {ch.control_hz} Hz"
-        )

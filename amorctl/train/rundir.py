@@ -27,6 +27,7 @@ from amorctl.core.config import TrainConfig, load_config
 from amorctl.core.contracts import Backend, Policy
 from amorctl.core.errors import AmorError
 from amorctl.core.files import file_sha256
+from amorctl.core.levers import TRAINING_ONLY_ENV
 from amorctl.core.vecenv import VectorEnv
 from amorctl.envs.factory import make_env
 from amorctl.registry import get_registry
@@ -258,9 +259,10 @@ class RunDir:
     def env_config(
         self, *, num_envs: int | None = None, seed: int | None = None, **env_overrides: Any
     ) -> TrainConfig:
-        """The run's config with ``[env]`` fields and the seed replaced."""
+        """The run's config with ``[env]`` fields and the seed replaced; the training-only episode
+        levers are off (``TRAINING_ONLY_ENV``: whoever rebuilds a run's env uses it, not trains it)."""
         cfg = self.config
-        env_fields = dict(env_overrides)
+        env_fields = {**TRAINING_ONLY_ENV, **env_overrides}
         if num_envs is not None:
             env_fields["num_envs"] = int(num_envs)
         run = cfg.run if seed is None else dataclasses.replace(cfg.run, seed=int(seed))

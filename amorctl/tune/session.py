@@ -24,6 +24,7 @@ import numpy as np
 from amorctl.analysis.rollout import Rollout, rollout
 from amorctl.core.contracts import TrackingView, tracking_view
 from amorctl.core.errors import AmorError
+from amorctl.core.levers import TRAINING_ONLY_ENV
 from amorctl.core.schedule import Schedule
 from amorctl.core.vecenv import close_env
 from amorctl.envs.factory import TOY_CONTROL_HZ, make_env
@@ -96,7 +97,7 @@ class PinnedMotion:
         config = run.config_for_data(dataset)  # --data: the run's dataset moved, or held-out clips
         ckpt = run.checkpoint()
         self.policy = run.policy_of(ckpt)
-        env_cfg = dataclasses.replace(config.env, num_envs=1, fixed_weights="")
+        env_cfg = dataclasses.replace(config.env, num_envs=1, fixed_weights="", **TRAINING_ONLY_ENV)
         self.config = dataclasses.replace(config, env=env_cfg, run=dataclasses.replace(config.run, seed=seed))
         base: Any = make_env(self.config)
         check_compatible(ckpt, self.config, base)

@@ -60,19 +60,19 @@ class MjxTrackingEnv:
         env_clips: np.ndarray | None = None,
         seed: int | None = 0,
     ) -> None:
-        from amorctl.envs.tracking_env import _check_clips, _check_library, _check_weights
+        from amorctl.envs.tracking_checks import check_clips, check_library, check_weights
 
         registry = get_registry() if isinstance(character, str) or isinstance(objective_set, str) else None
         ch = registry.character(character) if isinstance(character, str) else character
         spec = registry.objective_set(objective_set) if isinstance(objective_set, str) else objective_set
-        _check_library(ch, library)
+        check_library(ch, library)
         if action_mode not in ("absolute", "residual"):
             raise AmorError(f"action_mode must be 'absolute' or 'residual', got {action_mode!r}")
         if max_episode_steps < 1:
             raise AmorError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         if num_envs < 1:
             raise AmorError(f"num_envs must be >= 1, got {num_envs}")
-        self._check_clips = partial(_check_clips, lib=library)
+        self._check_clips = partial(check_clips, lib=library)
         self.character, self.library = ch, library
         objectives = spec.make(ch)
         m = len(spec.objectives)
@@ -83,7 +83,7 @@ class MjxTrackingEnv:
             high=np.asarray(objectives.high, dtype=np.float64),
             survival_bonus=survival_bonus_of(objectives),
         )
-        fixed = None if fixed_weights is None else _check_weights(fixed_weights, m)
+        fixed = None if fixed_weights is None else check_weights(fixed_weights, m)
         self.num_envs = n = int(num_envs)
         self.max_episode_steps = int(max_episode_steps)
         self.dt = 1.0 / ch.control_hz
