@@ -9,7 +9,7 @@ and prints every figure plus the wall times. A benchmark, not a test: nothing is
 paper's target is -4.7% MAE and +2.5 logits for the HLP over uniform weights.
 
 Usage: flock /tmp/amorctl-heavy.lock python benchmarks/hlp_table2.py [--run runs/b20walk]
-       [--minutes 10] [--out RUN/hlp] [--envs 32] [--eval-envs 32] [--eval-seconds 20]
+       [--minutes 10 | --budget-steps N] [--out RUN/hlp] [--envs 32] [--eval-envs 32] [--eval-seconds 20]
        [--disc-steps 600] [--json table.json] [--plot docs/img/hlp-trace.png] [--skip-train]
 """
 
@@ -33,6 +33,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", default="runs/b20walk")
     ap.add_argument("--minutes", type=float, default=10.0, help="training budget per HLP")
+    ap.add_argument(
+        "--budget-steps", type=int, default=None, help="training budget per HLP in env steps instead"
+    )
     ap.add_argument("--out", default=None, help="where the HLP directories go (default RUN/hlp)")
     ap.add_argument("--envs", type=int, default=32)
     ap.add_argument("--eval-envs", type=int, default=32)
@@ -62,7 +65,11 @@ def main() -> None:
             resume = HlpDir(out).exists()
             result = train_hlp(
                 args.run, out, config, resume=resume,
-                stop_when=lambda m, b=began, s=budget: time.perf_counter() - b > s,
+                stop_when=lambda m, b=began, s=budget: (
+                    m.get("env_steps", 0) >= args.budget_steps
+                    if args.budget_steps
+                    else time.perf_counter() - b > s
+                ),
             )  # fmt: skip
             wall[v] = time.perf_counter() - began
             iters[v] = result.end_iteration

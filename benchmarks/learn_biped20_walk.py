@@ -15,8 +15,9 @@ env steps) to a PNG beside the run directory and prints one line per figure. A b
 test: no timed assertion. The training wall time depends on how busy the machine is: the
 iteration count and env steps it prints are the comparable figures.
 
-Usage: python benchmarks/learn_biped20_walk.py [--minutes 20] [--out runs/bench-biped20-walk]
-       [--eval-envs 64] [--precision auto|fp32|bf16] [--set ppo.desired_kl=0.02 ...]
+Usage: python benchmarks/learn_biped20_walk.py [--minutes 20 | --budget-steps N]
+       [--out runs/bench-biped20-walk] [--eval-envs 64] [--precision auto|fp32|bf16]
+       [--set ppo.desired_kl=0.02 ...]
        [--resume]  (train the run further)   [--eval-only]  (evaluate its newest checkpoint)
 """
 
@@ -111,6 +112,9 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--minutes", type=float, default=20.0, help="training wall-clock budget")
+    parser.add_argument(
+        "--budget-steps", type=int, default=None, help="training budget in env steps instead of --minutes"
+    )
     parser.add_argument("--out", type=Path, default=Path("runs/bench-biped20-walk"))
     parser.add_argument("--eval-envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
@@ -162,7 +166,11 @@ def main() -> None:
             config,
             args.out,
             resume=args.resume,
-            stop_when=lambda m: time.perf_counter() - began > budget,
+            stop_when=lambda m: (
+                m.get("env_steps", 0) >= args.budget_steps
+                if args.budget_steps
+                else time.perf_counter() - began > budget
+            ),
         )
         trained_s = time.perf_counter() - began
         print(

@@ -117,7 +117,12 @@ class Science:
         other = "humanoid36" if a.character == "biped20" else "biped20"
         base = (
             f"python benchmarks/science.py --character {a.character} --preset {a.preset} "
-            f"--budget-minutes {a.budget_minutes:g} --out {self.out}"
+            + (
+                f"--budget-steps {a.budget_steps}"
+                if a.budget_steps
+                else f"--budget-minutes {a.budget_minutes:g}"
+            )
+            + f" --out {self.out}"
             + "".join(f" --set {shlex.quote(t)}" for t in a.set_text)
         )
         self.results["meta"] = {
@@ -130,7 +135,8 @@ class Science:
             "settings": a.set_text,
             "dataset": f"the {len(load_dataset(self.dataset).clips)} walking clips of the built-in set "
             f"(`walk`, `walker/*`)",
-            "budget_minutes": a.budget_minutes,
+            "budget_minutes": None if a.budget_steps else a.budget_minutes,
+            "budget_steps": a.budget_steps,
             "out": str(self.out),
             "other_report": a.other_report,
             "rerun": {
@@ -192,7 +198,10 @@ class Science:
     # -- the parts
     def part_train(self) -> None:
         cfg = self.base_config()
-        train(cfg, self.moppo, budget_s=self.args.budget_minutes * 60, stop_at=self.stop_at(0), label="MOPPO")
+        a = self.args
+        budget_s = None if a.budget_steps else a.budget_minutes * 60
+        stop_at = self.stop_at(0)
+        train(cfg, self.moppo, budget_s=budget_s, stop_at=stop_at, label="MOPPO", budget_steps=a.budget_steps)
         self.results["train"] = run_summary(self.moppo, f"MOPPO (preset `{self.args.preset}` sampling)")
         meta = self.results["meta"]
         self.results["train"]["made_by"] = {k: meta[k] for k in ("command", "commit", "date_utc")}
@@ -339,6 +348,12 @@ def config_setting(text: str) -> tuple[str, Any, str]:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--budget-minutes", type=float, default=25.0, help="MOPPO training wall clock")
+    p.add_argument(
+        "--budget-steps",
+        type=int,
+        default=None,
+        help="MOPPO training budget in env steps instead of --budget-minutes (comparable across machines)",
+    )
     p.add_argument("--character", choices=("biped20", "humanoid36"), default="biped20")
     p.add_argument("--preset", default="science")
     p.add_argument(

@@ -94,6 +94,13 @@ def spread(items: Sequence[int], points: int) -> list[int]:
 
 
 # ------------------------------------------------------------------------------------ report
+def _budget(meta: dict[str, Any]) -> str:
+    """The MOPPO budget as the run stated it: env steps (comparable across machines) or minutes."""
+    if meta.get("budget_steps"):
+        return f"{meta['budget_steps']:,} env steps (the wall clock it took is in the training table)"
+    return f"{_f(meta.get('budget_minutes'))} min of training wall clock"
+
+
 def _f(x: Any, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
@@ -132,8 +139,7 @@ def render_markdown(results: dict[str, Any], protocol: str) -> str:
         f"- machine: {meta.get('machine', '?')}",
         f"- character: {meta.get('character', '?')}, preset `{meta.get('preset', '?')}`, "
         f"dataset: {meta.get('dataset', '?')}",
-        f"- MOPPO budget: {_f(meta.get('budget_minutes'))} min of training wall clock; run "
-        f"directory `{meta.get('out', '?')}` (not in the repository)",
+        f"- MOPPO budget: {_budget(meta)}; run directory `{meta.get('out', '?')}` (not in the repository)",
         "",
         "## Summary",
         "",

@@ -80,9 +80,18 @@ class Clock:
         return math.inf if self.at is None else self.at - time.time()
 
 
-def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: float, label: str) -> None:
+def train(
+    config: TrainConfig,
+    out: Path,
+    *,
+    budget_s: float | None,
+    stop_at: float,
+    label: str,
+    budget_steps: int | None = None,
+) -> None:
     """Train (or continue) the run in ``out`` until ``config.run.iterations``, the wall-clock budget
-    (summed over resumed segments) or the absolute time ``stop_at`` (epoch seconds)."""
+    (summed over resumed segments), the env-step budget (the run's total) or the absolute time
+    ``stop_at`` (epoch seconds)."""
     run = RunDir(out)
     resume = run.exists() and bool(run.checkpoints())
     spent = trained_wall_s(metrics_rows(out)) if resume else 0.0
@@ -93,6 +102,10 @@ def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: fl
     remaining = math.inf if budget_s is None else budget_s - spent
     if remaining <= 0 or time.time() >= stop_at:
         return
+    if resume and budget_steps is not None:
+        done = run.checkpoint().trainer.meta.get("env_steps", 0)
+        if int(done) >= budget_steps:
+            return
     began = time.perf_counter()
     shown = [began]
 
@@ -112,6 +125,10 @@ def train(config: TrainConfig, out: Path, *, budget_s: float | None, stop_at: fl
         out,
         resume=resume,
         on_iteration=progress,
-        stop_when=lambda m: time.perf_counter() - began > remaining or time.time() > stop_at,
+        stop_when=lambda m: (
+            time.perf_counter() - began > remaining
+            or time.time() > stop_at
+            or (budget_steps is not None and m.get("env_steps", 0) >= budget_steps)
+        ),
     )
     print(f"  {label}: iterations {result.start_iteration} -> {result.end_iteration}", flush=True)

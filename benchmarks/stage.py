@@ -77,8 +77,8 @@ def work_copy(entry: Path, work: Path) -> TrainConfig:
     return config
 
 
-def evaluate_families(run: RunDir, episodes: int, seed: int) -> dict[str, dict[str, float]]:
-    """Survival and joint MAE under uniform ``w``, per motion family ({} for envs without clips)."""
+def evaluate_clips(run: RunDir, episodes: int, seed: int) -> dict[str, dict[str, float]]:
+    """Survival and joint MAE under uniform ``w``, per clip ({} for envs without clips)."""
     config = run.config
     if config.env.kind != "tracking":
         return {}
@@ -88,13 +88,21 @@ def evaluate_families(run: RunDir, episodes: int, seed: int) -> dict[str, dict[s
     result = evaluate_setting(
         policy, config, uniform, label="uniform", motions=clips, episodes=episodes, seed=seed
     )
-    families: dict[str, list[dict[str, Any]]] = {}
-    for clip, metrics in result.per_motion.items():
+    return {
+        clip: {"survival": float(m["survival_rate"]), "joint_mae_deg": float(m["joint_mae_deg"])}
+        for clip, m in result.per_motion.items()
+    }
+
+
+def by_family(per_clip: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Per-clip figures averaged per motion family (``walker/turn_left0`` -> ``walker``)."""
+    families: dict[str, list[dict[str, float]]] = {}
+    for clip, metrics in per_clip.items():
         families.setdefault(clip_family(clip), []).append(metrics)
     return {
         family: {
-            "survival": sum(float(m["survival_rate"]) for m in rows) / len(rows),
-            "joint_mae_deg": sum(float(m["joint_mae_deg"]) for m in rows) / len(rows),
+            "survival": sum(m["survival"] for m in rows) / len(rows),
+            "joint_mae_deg": sum(m["joint_mae_deg"] for m in rows) / len(rows),
         }
         for family, rows in families.items()
     }
@@ -164,11 +172,18 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
     config = override(config, run__iterations=start_iteration + (args.max_iterations or OPEN_ENDED))
     began = time.perf_counter()
     limit = args.minutes * 60.0
-    result = train_run(config, work, resume=resume, stop_when=lambda _m: time.perf_counter() - began > limit)
+    step_limit = start_steps + args.budget_steps if args.budget_steps else None
+
+    def stop(m: dict[str, float]) -> bool:
+        if step_limit is not None and m.get("env_steps", 0) >= step_limit:
+            return True
+        return time.perf_counter() - began > limit
+
+    result = train_run(config, work, resume=resume, stop_when=stop)
     wall = time.perf_counter() - began
     run = RunDir.open(work)
     after = run.checkpoint().trainer.meta
-    evaluation = evaluate_families(run, args.eval_episodes, args.eval_seed)
+    per_clip = evaluate_clips(run, args.eval_episodes, args.eval_seed)
     previous = stages[-1]["cumulative"] if stages else {"env_steps": 0, "iterations": 0, "wall_clock_s": 0.0}
     record = {
         "stage": len(stages) + 1,
@@ -183,7 +198,8 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
             "wall_clock_s": round(previous["wall_clock_s"] + wall, 1),
         },
         "interrupted": bool(result.interrupted),
-        "evaluation": evaluation,
+        "evaluation": by_family(per_clip),
+        "evaluation_clips": per_clip,
         "evaluation_protocol": f"uniform w, {args.eval_episodes} episodes per clip, seed {args.eval_seed}",
     }
     stages.append(record)
@@ -226,6 +242,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--description", default="", help="one line for the card")
     parser.add_argument("--max-iterations", type=int, default=0, help="also end the stage after N iterations")
+    parser.add_argument(
+        "--budget-steps", type=int, default=0, help="also end the stage after N env steps (this stage's)"
+    )
     parser.add_argument("--eval-episodes", type=int, default=8, help="episodes per clip at the stage's end")
     parser.add_argument("--eval-seed", type=int, default=1)
     args = parser.parse_args(argv)

@@ -132,3 +132,30 @@ def test_report_explains_fallen_fixed_policies_and_names_the_training_command() 
     results["meta"]["command"] = made_by["command"]  # trained by the command of this report
     md = sr.render_markdown(results, "")
     assert "Most fixed-weight policies fell" not in md and "was trained by" not in md
+
+
+def test_env_step_budgets_end_training_at_the_same_steps_on_any_machine(tmp_path) -> None:
+    """``--budget-steps``: training stops at the first iteration reaching the budget (the run's
+    total over resumed segments), however fast the machine is."""
+    import science_runs
+
+    from amorctl.core.config import TrainConfig, merge
+    from amorctl.train.rundir import RunDir
+
+    config = merge(
+        TrainConfig(),
+        {
+            "run": {"iterations": 1000, "checkpoint_every": 1, "tensorboard": False, "threads": 1},
+            "env": {"kind": "toy", "num_envs": 8, "episode_seconds": 0.2},
+            "network": {"actor_hidden": [8], "critic_hidden": [8]},
+            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1},
+        },
+        "test",
+    )  # 32 env steps per iteration
+    out = tmp_path / "run"
+    science_runs.train(config, out, budget_s=None, stop_at=float("inf"), label="t", budget_steps=100)
+    assert RunDir.open(out).checkpoint().trainer.meta["env_steps"] == 128  # 4 iterations: 128 >= 100
+    science_runs.train(config, out, budget_s=None, stop_at=float("inf"), label="t", budget_steps=100)
+    assert RunDir.open(out).checkpoint().trainer.meta["env_steps"] == 128  # spent: nothing more
+    science_runs.train(config, out, budget_s=None, stop_at=float("inf"), label="t", budget_steps=200)
+    assert RunDir.open(out).checkpoint().trainer.meta["env_steps"] == 224  # continues to 7 iterations

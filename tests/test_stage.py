@@ -20,6 +20,7 @@ from amorctl.envs.synthetic import synthetic_library
 from amorctl.motion.dataset import write_dataset
 from amorctl.registry import get_registry
 from amorctl.train.checkpoint import load_checkpoint
+from amorctl.train.episode_stats import clip_family
 from amorctl.train.loop import train_run
 from amorctl.train.rundir import RunDir
 
@@ -70,6 +71,10 @@ def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, c
         assert st["evaluation"]  # one entry per motion family of the clips
         for ev in st["evaluation"].values():
             assert 0.0 <= ev["survival"] <= 1.0 and ev["joint_mae_deg"] > 0
+        clips = st["evaluation_clips"]  # and per clip: the family figure is their mean
+        for family, ev in st["evaluation"].items():
+            rows = [v for c, v in clips.items() if clip_family(c) == family]
+            assert rows and ev["survival"] == pytest.approx(np.mean([r["survival"] for r in rows]))
     assert "Training stages" in (entry / "README.md").read_text()
     assert (entry / "figures" / "stages.png").is_file()
     assert RunDir.open(entry).config.env.dataset == "dataset.mcap"  # the entry is self-contained
@@ -93,6 +98,8 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     with pytest.raises(SystemExit):
         run_stage(tmp_path, "--set", "ppo.entropy_coef=0.01")
     assert "continues with the run's own config" in capsys.readouterr().err
+    run_stage(tmp_path, "--budget-steps", "16")  # an env-step budget: 4 envs x 4 steps = one iteration
+    assert "stage 2: 1 iterations, 16 env steps" in capsys.readouterr().out
     card_path = tmp_path / "shelf" / "tiny" / "card.json"
     card = json.loads(card_path.read_text())
     card_path.write_text(json.dumps({**card, "resumable": False}))
