@@ -13,6 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import lever_rows
 import stage as stage_script
 
 from amorctl.core.config import TrainConfig, merge, to_toml
@@ -106,3 +107,23 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     with pytest.raises(SystemExit):
         run_stage(tmp_path)
     assert "not a resumable entry" in capsys.readouterr().err
+
+
+def test_lever_rows_tabulates_runs_and_clips() -> None:
+    def fake(label: str, walk: float, jump: float) -> dict:
+        clips = {
+            "walk": {"survival": walk, "joint_mae_deg": 8.0},
+            "jump": {"survival": jump, "joint_mae_deg": 12.0},
+        }
+        return {
+            "label": label,
+            "env_steps": 2_500_000,
+            "wall_s": 600.0,
+            "episode_length": 80.0,
+            "clips": clips,
+        }
+
+    text = lever_rows.markdown([fake("plain", 1.0, 0.0), fake("adaptive", 0.875, 0.5)])
+    assert "| plain | 2.50 M | 10 min | 80 | 1 of 2 | 50% | 10.0° |" in text
+    assert "| adaptive | 2.50 M | 10 min | 80 | 0 of 2 | 69% | 10.0° |" in text
+    assert "| jump | 0% / 12.0° | 50% / 12.0° |" in text

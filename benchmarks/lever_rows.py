@@ -1,0 +1,122 @@
+"""One lever a row: tracking runs trained with and without a lever, compared at equal env steps.
+
+Each ``--run LABEL=DIR`` is a run directory (a stage's working copy, ``runs/stages/NAME``, or any
+tracking run). For each, the newest checkpoint is evaluated under uniform ``w`` on every clip of
+its dataset (``--episodes`` per clip, seed ``--seed``, deterministic policy; survival over full
+episodes and joint MAE, as ``benchmarks/stage.py`` evaluates a stage), and its training curve is
+read from ``metrics.csv``. Prints two markdown tables (per run: env steps, wall clock, the
+training episode length at the end, clips with survival >= 90 %, mean survival and MAE; per clip:
+survival / MAE of each run) and writes a figure of the training curves against env steps (``--figure``).
+
+    python benchmarks/lever_rows.py --run plain=runs/levers/plain/work/biped20-repertoire \\
+        --run adaptive=runs/levers/adaptive/work/biped20-repertoire --figure docs/img/levers.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stage import evaluate_clips
+
+from amorctl.train.rundir import RunDir
+
+CURVES = (("episode/length", "training episode length (steps)"), ("return/scalarized", "return · w"))
+WINDOW = 25  # iterations the end-of-training figures average over
+
+
+def read_metrics(run: Path) -> dict[str, np.ndarray]:
+    """metrics.csv as columns of floats (missing cells NaN)."""
+    with (run / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    keys = rows[0].keys() if rows else []
+    return {k: np.array([float(r[k]) if r.get(k) not in (None, "") else np.nan for r in rows]) for k in keys}
+
+
+def row(label: str, run_dir: Path, episodes: int, seed: int) -> dict[str, Any]:
+    """The run's evaluation per clip and its training figures."""
+    run = RunDir.open(run_dir)
+    meta = run.checkpoint().trainer.meta
+    metrics = read_metrics(run_dir)
+    clips = evaluate_clips(run, episodes, seed)
+    return {
+        "label": label,
+        "env_steps": int(meta["env_steps"]),
+        "wall_s": float(np.nansum(metrics.get("time/iteration_s", np.array([np.nan])))),
+        "episode_length": float(np.nanmean(metrics["episode/length"][-WINDOW:])),
+        "clips": clips,
+        "metrics": metrics,
+    }
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    """Two tables: one line per run (totals), then one line per clip (survival / MAE per run)."""
+    lines = [
+        "| run | env steps | wall clock | train episode length | clips ≥ 90 % | mean survival | mean MAE |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        surv = [e["survival"] for e in r["clips"].values()]
+        mae = [e["joint_mae_deg"] for e in r["clips"].values()]
+        lines.append(
+            f"| {r['label']} | {r['env_steps'] / 1e6:.2f} M | {r['wall_s'] / 60:.0f} min | "
+            f"{r['episode_length']:.0f} | {sum(s >= 0.9 for s in surv)} of {len(surv)} | "
+            f"{np.mean(surv):.0%} | {np.mean(mae):.1f}° |"
+        )
+    lines += ["", "| clip |" + "".join(f" {r['label']} |" for r in rows), "| --- |" + " --- |" * len(rows)]
+    for clip in rows[0]["clips"]:
+        cells = "".join(
+            f" {r['clips'][clip]['survival']:.0%} / {r['clips'][clip]['joint_mae_deg']:.1f}° |" for r in rows
+        )
+        lines.append(f"| {clip} |{cells}")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(CURVES), figsize=(5.5 * len(CURVES), 3.8))
+    for ax, (key, title) in zip(axes, CURVES, strict=True):
+        for r in rows:
+            m = r["metrics"]
+            ax.plot(m["env_steps"] / 1e6, m[key], label=r["label"], lw=1)
+        ax.set(xlabel="env steps (M)", title=title)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--run", action="append", required=True, metavar="LABEL=DIR")
+    parser.add_argument("--episodes", type=int, default=8, help="evaluation episodes per clip")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--figure", default="", help="PNG of the training curves")
+    args = parser.parse_args(argv)
+    rows = []
+    for spec in args.run:
+        label, _, folder = spec.partition("=")
+        if not folder:
+            parser.error(f"--run {spec!r}: write LABEL=DIR")
+        rows.append(row(label, Path(folder), args.episodes, args.seed))
+    print(markdown(rows))
+    if args.figure:
+        plot(rows, Path(args.figure))
+        print(f"figure: {args.figure}")
+
+
+if __name__ == "__main__":
+    main()
