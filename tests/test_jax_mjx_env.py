@@ -20,14 +20,15 @@ from amorctl.registry import get_registry
 N = 4
 
 
-def env_pair(character: str, contacts: bool = True, seconds: float = 2.0):
-    """A torch-cpu env and an MJX env of ``character`` in the same state (the C env's reset)."""
+def env_pair(character: str, contacts: bool = True, seconds: float = 2.0, **extra):
+    """A torch-cpu env and an MJX env of ``character`` in the same state (the C env's reset);
+    ``extra``: constructor options of both."""
     from amorctl.plugins.backends.jax_mjx.env import MjxTrackingEnv
 
     ch = get_registry().character(character)
     lib = synthetic_library(ch, num_clips=2, seconds=seconds, seed=3)
-    j = MjxTrackingEnv(ch, lib, **env_kwargs())
-    c = c_env(character, lib)
+    j = MjxTrackingEnv(ch, lib, **env_kwargs(), **extra)
+    c = c_env(character, lib, **extra)
     if not contacts:
         c.sim.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
         model = j.core.model
@@ -44,13 +45,13 @@ def env_kwargs() -> dict:
     return dict(num_envs=N, max_episode_steps=200, action_mode="residual", seed=0)
 
 
-def c_env(character: str, lib, servo: str = "native") -> TrackingEnv:
+def c_env(character: str, lib, servo: str = "native", **extra) -> TrackingEnv:
     """torch-cpu's env (``servo="python"``: a servo character on the reference servo,
     ``BatchSim(servo_model="python")``, instead of MuJoCo's native one)."""
     from amorctl.sim.batch_sim import BatchSim
 
     ch = get_registry().character(character)
-    c = TrackingEnv(ch, lib, nthread=1, **env_kwargs())
+    c = TrackingEnv(ch, lib, nthread=1, **env_kwargs(), **extra)
     if servo != "native":
         c.sim = BatchSim(ch, N, nthread=1, servo_model=servo)  # before reset: the env's only sim
     c.select_clips(from_start=True)  # no clip ends within the 50 steps of a 2 s clip
@@ -111,6 +112,33 @@ def run_pair(c, j, steps: int, scale: float, seed: int = 0, resync: bool = False
 
 #: (character, contacts, resync); every case: max |Δreward| and max |Δobs| below 1e-4
 ENV_CASES = [("biped20", True, True), ("humanoid36", True, True), ("humanoid36", False, False)]
+
+
+@pytest.mark.slow
+def test_mjx_env_terminates_on_tracking_error_as_torch_cpus_does() -> None:
+    """``termination_distance``: from the same state and action both envs end the same episodes,
+    those whose tracking error (measured on a third, plain env) exceeds the distance."""
+    from amorctl.core.frame_layout import split_frame
+    from amorctl.core.termination import tracking_error
+
+    actions = 0.4 * np.random.default_rng(1).normal(size=(N, 20))
+    ch = get_registry().character("biped20")
+    plain = c_env("biped20", synthetic_library(ch, num_clips=2, seconds=2.0, seed=3))
+    plain.reset(seed=0)  # the state env_pair starts both envs in
+    plain.step(actions)
+    parts = [
+        split_frame(f, plain.num_joints, plain.num_ee)
+        for f in (plain._sim_frames(), plain.ref_frames[plain.ref_idx])
+    ]
+    error = np.sort(tracking_error(*parts))
+    distance = float(error[1] + error[2]) / 2  # two of the four envs drift farther
+    c, j = env_pair("biped20", termination_distance=distance)
+    _, _, tj, _, ij = j.step(actions)
+    _, _, tc, _, ic = c.step(actions)
+    expected = tracking_error(*parts) > distance
+    np.testing.assert_array_equal(ic["far"], expected)
+    np.testing.assert_array_equal(np.asarray(ij["far"]), expected)
+    np.testing.assert_array_equal(np.asarray(tj), tc)
 
 
 @pytest.mark.slow

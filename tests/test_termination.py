@@ -69,9 +69,7 @@ def test_config_asks_the_backend_and_evaluation_never_uses_it(tracking_run) -> N
     config = override(TrainConfig(), env__termination_distance=0.3)
     assert levers_in_use(config)["termination_distance"] == "[env] termination_distance = 0.3"
     check_backend_levers(config, get_registry().backend("torch-cpu").levers)
-    with pytest.raises(AmorError, match=r"termination_distance = 0\.3 needs a backend"):
-        jax = override(config, run__backend="jax-mjx")
-        check_backend_levers(jax, get_registry().backend("jax-mjx").levers)
+    assert "termination_distance" in get_registry().backend("jax-mjx").levers  # both backends
     with pytest.raises(AmorError, match="termination_distance needs the tracking env"):
         merge(TrainConfig(), {"env": {"kind": "toy", "termination_distance": 0.3}}, "test")
     with pytest.raises(AmorError, match="termination_distance"):

@@ -36,7 +36,7 @@ INSTALL_HINT = 'pip install "amorctl[jax]"'
 #: The training levers (docs/moppo.md, "Levers") jax-mjx implements: return normalization
 #: (moppo_math.py, trainer.py) and the weight mixture (weight_mix.py). The survival channel and
 #: adaptive weights stay torch-cpu's.
-LEVERS = frozenset({"return_norm", "weight_sampling"})
+LEVERS = frozenset({"return_norm", "weight_sampling", "termination_distance"})
 
 
 def missing_modules() -> list[str]:

@@ -28,6 +28,7 @@ import numpy as np
 from amorctl.core.frame_layout import STATE_ARRAYS, TrackingInputs, frame_features, split_frame
 from amorctl.core.geometry import quat_conj, quat_rotate
 from amorctl.core.specs import CharacterSpec
+from amorctl.core.termination import far_from_reference
 from amorctl.motion.clips import MotionLibrary
 from amorctl.plugins.backends.jax_mjx import weight_mix
 from amorctl.plugins.backends.jax_mjx.physics import MjxPhysics
@@ -101,6 +102,7 @@ class StepOut(NamedTuple):
     truncated: jax.Array
     final_obs: jax.Array
     fell: jax.Array
+    far: jax.Array
     diverged: jax.Array
     switched: jax.Array
 
@@ -121,6 +123,7 @@ class MjxTracking:
         fixed_weights: np.ndarray | None,
         fall_height_fraction: float,
         weight_mix: WeightMix = PAPER_DRAW,
+        termination_distance: float = 0.0,
     ) -> None:
         ch = character
         self.character, self.objectives = ch, objectives
@@ -132,6 +135,7 @@ class MjxTracking:
         self.fixed_weights = None if fixed_weights is None else jnp.asarray(fixed_weights, jnp.float32)
         self.weight_mix = weight_mix
         self.fall_drop = float(fall_height_fraction) * ch.standing_height
+        self.termination_distance = float(termination_distance)
         self.physics = phys = MjxPhysics(ch)
         self.dt = 1.0 / ch.control_hz
         self.servo, self.substeps, self.latency = phys.servo, phys.substeps, phys.latency
@@ -280,7 +284,8 @@ class MjxTracking:
         )
         diverged = ~finite | jnp.any(jnp.abs(data.qvel) > MAX_QVEL, axis=1)
         fell = frames[:, 0] < ref[:, 0] - self.fall_drop
-        terminated = fell | diverged
+        far = far_from_reference(inputs.sim, inputs.ref, self.termination_distance, xp)
+        terminated = fell | far | diverged
         rewards = self.objectives(inputs, (~terminated).astype(jnp.float32), xp=xp)
         rewards = jnp.where(diverged[:, None], 0.0, rewards).astype(jnp.float32)
 
@@ -320,5 +325,13 @@ class MjxTracking:
         obs = jnp.where(done[:, None], fresh_obs, obs)
         new = EnvState(**st, delay=delay, delay_head=head, obs=obs, key=key)
         return new, StepOut(
-            obs, rewards, terminated, truncated, final_obs, fell & ~diverged, diverged, switched
+            obs,
+            rewards,
+            terminated,
+            truncated,
+            final_obs,
+            fell & ~diverged,
+            far & ~fell & ~diverged,
+            diverged,
+            switched,
         )

@@ -55,6 +55,7 @@ class MjxTrackingEnv:
         fixed_weights: np.ndarray | None = None,
         weight_sampler: WeightSampler | None = None,
         fall_height_fraction: float = 1.0 / 3.0,
+        termination_distance: float = 0.0,
         nthread: int = 0,
         clips: Sequence[int] | None = None,
         env_clips: np.ndarray | None = None,
@@ -101,6 +102,7 @@ class MjxTrackingEnv:
             fixed_weights=fixed,
             weight_mix=WeightMix() if weight_sampler is None else WeightMix.of_sampler(weight_sampler),
             fall_height_fraction=fall_height_fraction,
+            termination_distance=termination_distance,
         )
         self.weight_sampler = weight_sampler  # its mix is drawn on the device (weight_mix.py)
         self.model = self.core.model
@@ -174,6 +176,7 @@ class MjxTrackingEnv:
         info = {
             "final_obs": out.final_obs,
             "fell": out.fell,
+            "far": out.far,
             "diverged": out.diverged,
             "diverged_total": self.diverged_total,
             "clip_switched": out.switched,
