@@ -10,7 +10,9 @@ clips, ``--preset``), collects one real rollout batch, and measures side by side
 * **the PPO update** (``num_epochs`` x ``num_minibatches`` Adam steps on that batch), per variant:
   as shipped (eager, ``foreach`` Adam), Adam with ``fused=True``, the actor and critic MLPs under
   ``torch.compile`` (inductor, CPU), both, and one torch thread instead of all. Compilation happens
-  in an untimed warm-up update. The update's arithmetic is the same in every variant.
+  in an untimed warm-up update. The update's arithmetic is the same in these variants. Then two
+  that change it (their sample efficiency is not measured here): two minibatches twice as large
+  (the same FLOPs in half the Adam steps) and three epochs instead of five (60 % of the FLOPs).
 
 Usage: python benchmarks/update_step.py [--preset science] [--repeats 3] [--threads 2]
 """
@@ -25,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from amorctl.core.config import load_preset
+from amorctl.core.config import load_preset, override
 from amorctl.envs.factory import make_env
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend
 from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
@@ -70,18 +72,21 @@ def both(trainer: MOPPOTrainer) -> None:
     compiled_networks(trainer)
 
 
-VARIANTS: dict[str, tuple[Callable[[MOPPOTrainer], None] | None, int | None]] = {
-    "as shipped (eager, foreach Adam)": (None, None),
-    "Adam fused=True": (fused_adam, None),
-    "torch.compile (inductor) MLPs": (compiled_networks, None),
-    "fused Adam + torch.compile": (both, None),
-    "one torch thread": (None, 1),
+#: name -> (a change to the trainer, torch threads (None: --threads), [ppo] overrides)
+VARIANTS: dict[str, tuple[Callable[[MOPPOTrainer], None] | None, int | None, dict[str, int]]] = {
+    "as shipped (eager, foreach Adam)": (None, None, {}),
+    "Adam fused=True": (fused_adam, None, {}),
+    "torch.compile (inductor) MLPs": (compiled_networks, None, {}),
+    "fused Adam + torch.compile": (both, None, {}),
+    "one torch thread": (None, 1, {}),
+    "2 minibatches (twice as large)": (None, None, {"ppo__num_minibatches": 2}),
+    "3 epochs": (None, None, {"ppo__num_epochs": 3}),
 }
 
 
-def time_update(preset: str, change, threads: int, repeats: int, batch_seed: int = 0) -> float:
+def time_update(preset: str, change, threads: int, repeats: int, ppo: dict[str, int]) -> float:
     """Median seconds of one update on a fresh trainer's first rollout batch, after a warm-up."""
-    config = load_preset(preset)
+    config = override(load_preset(preset), **ppo)
     backend = TorchCpuBackend()
     env = make_env(config, backend)
     torch.set_num_threads(threads)
@@ -128,11 +133,13 @@ def main() -> None:
         f"{config.env.num_envs * p.num_steps // p.num_minibatches} samples ({steps} Adam steps)"
     )
     base = None
-    for name, (change, threads) in VARIANTS.items():
-        seconds = time_update(args.preset, change, threads or args.threads, args.repeats)
+    for name, (change, threads, ppo) in VARIANTS.items():
+        seconds = time_update(args.preset, change, threads or args.threads, args.repeats, ppo)
         base = base or seconds
+        cfg = override(config, **ppo).ppo
         print(
-            f"  {name:34s} {1e3 * seconds:7.1f} ms/update  {1e3 * seconds / steps:6.2f} ms/step  "
+            f"  {name:34s} {1e3 * seconds:7.1f} ms/update  "
+            f"{1e3 * seconds / (cfg.num_epochs * cfg.num_minibatches):6.2f} ms/Adam step  "
             f"x{base / seconds:.2f}"
         )
     torch.set_num_threads(args.threads)
