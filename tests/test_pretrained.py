@@ -15,7 +15,7 @@ from safetensors.numpy import load_file
 from amorctl.cli.main import main
 from amorctl.core.errors import AmorError
 from amorctl.train import pretrained
-from amorctl.train.pretrained_export import export_pretrained, wall_time_s
+from amorctl.train.pretrained_export import export_pretrained, thin_metrics, wall_time_s
 from amorctl.train.rundir import RunDir
 
 
@@ -126,6 +126,18 @@ def test_wall_time_adds_resumed_segments(tmp_path: Path) -> None:
     path.write_text("iteration,wall_time_s\n1,10.0\n2,20.0\n3,5.0\n4,7.5\n")
     assert wall_time_s(path) == 27.5  # 20 s, then a resume that ran 7.5 s
     assert np.isnan(wall_time_s(tmp_path / "missing.csv"))
+
+
+def test_thinned_metrics_keep_every_tenth_iteration_and_each_segments_end(tmp_path: Path) -> None:
+    rows = [(i, 2.0 * i) for i in range(1, 26)] + [
+        (i, 2.0 * (i - 25)) for i in range(26, 38)
+    ]  # a resume at 26
+    src, dst = tmp_path / "m.csv", tmp_path / "thin.csv"
+    src.write_text("iteration,wall_time_s\n" + "".join(f"{i},{t}\n" for i, t in rows))
+    thin_metrics(src, dst, every=10)
+    kept = [int(line.split(",")[0]) for line in dst.read_text().splitlines()[1:]]
+    assert kept == [1, 10, 20, 25, 30, 37]  # first, every 10th, the end of segment 1, the last
+    assert wall_time_s(dst) == wall_time_s(src) == 50.0 + 24.0
 
 
 def test_package_folder_holds_no_fake_entry() -> None:

@@ -35,6 +35,7 @@ from amorctl.train.checkpoint import save_checkpoint
 from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir
 
 DATASET_FILE = "dataset.mcap"
+METRICS_EVERY = 10  # an entry's metrics.csv keeps every this many iterations (thin_metrics)
 #: Trainer arrays / metadata that only resuming training needs (dropped): key prefixes.
 _TRAINING_ONLY = ("optimizer", "rng", "episodes.", "obs")
 #: Observations compared between the run's policy and the stripped one.
@@ -70,6 +71,30 @@ def wall_time_s(metrics_path: Path) -> float:
             total += prev
         prev = t
     return total + prev
+
+
+def thin_metrics(src: Path, dst: Path, every: int = METRICS_EVERY) -> None:
+    """Copy ``metrics.csv`` keeping every ``every``-th iteration, the first and last rows and the
+    last row of each resumed segment (so :func:`wall_time_s` and the learning curves survive): an
+    entry trained in stages would otherwise grow by a full row per iteration per stage."""
+    with src.open(newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames or [], list(reader)
+
+    def seconds(row: dict[str, str]) -> float:
+        return float(row.get("wall_time_s") or "nan")
+
+    keep = [
+        row
+        for i, row in enumerate(rows)
+        if i in (0, len(rows) - 1)
+        or float(row.get("iteration") or 0) % every == 0
+        or seconds(rows[i + 1]) < seconds(row)  # a resume starts a new segment after this row
+    ]
+    with dst.open("w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(keep)
 
 
 def _last_metrics(metrics_path: Path) -> dict[str, float]:
@@ -188,7 +213,7 @@ def export_pretrained(
         atomic_write_text(tmp / CONFIG_FILE, to_toml(config))
         save_checkpoint(tmp / CHECKPOINT_DIR, ckpt.iteration, meta, kept, kept_env)
         if run.metrics_path.is_file():
-            shutil.copyfile(run.metrics_path, tmp / "metrics.csv")
+            thin_metrics(run.metrics_path, tmp / "metrics.csv")
         copied = []
         for fig in figure_paths:
             (tmp / "figures").mkdir(exist_ok=True)
