@@ -166,3 +166,20 @@ def test_the_shipped_biped20_walk_walks_and_reads_its_weights(tmp_path, monkeypa
     obs[:, -m:] = [np.eye(m)[0], np.eye(m)[-1]]  # the same state; all weight on `up`, then on `smooth`
     actions = policy(obs)
     assert np.isfinite(actions).all() and np.abs(actions[0] - actions[1]).max() > 1e-3
+
+
+def test_the_shipped_biped20_repertoire_matches_its_card(tmp_path, monkeypatch, capsys) -> None:
+    """The repertoire entry's card figures, re-measured short: a clip its last stage tracks (walk)
+    survives 2 of 2 episodes near the card's joint MAE, one it does not (backflip) falls."""
+    monkeypatch.chdir(tmp_path)
+    card = pretrained.read_card(pretrained.package_folder() / "biped20-repertoire")
+    last = card["stages"][-1]["evaluation"]
+    assert card["resumable"] and len(card["motions"]) == 20 and last["walk"]["survival"] == 1.0
+    for clip, survives in (("walk", True), ("backflip", False)):
+        code, out, err = run_cli(capsys, "evaluate", "pretrained:biped20-repertoire", "--motion", clip,
+                                 "--episodes", "2", "--json")  # fmt: skip
+        assert code == 0, err
+        metrics = json.loads(out)["settings"][0]["metrics"]
+        assert metrics["survival_rate"] == (1.0 if survives else 0.0), (clip, metrics)
+        if survives:
+            assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 2.0, metrics
