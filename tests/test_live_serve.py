@@ -160,3 +160,34 @@ def test_serve_live_with_a_token_puts_the_page_behind_the_gate() -> None:
     tune_live.serve_live("s", "127.0.0.1", 0, urls.append, app_class=App, token=TOKEN)  # type: ignore[arg-type]
     assert seen == {"bound": ("127.0.0.1", 0), "direct": 403, "with token": 303}
     assert re.fullmatch(rf"http://127\.0\.0\.1:\d+/\?token={TOKEN}", urls[0])
+
+
+def test_ctrl_c_always_ends_the_page_even_when_its_shutdown_hangs(monkeypatch) -> None:
+    """SIGINT arms a watchdog: a shutdown still running after SHUTDOWN_BOUND_S ends the process
+    (status 0); one that finishes in time cancels it, and the previous SIGINT handler is back."""
+    import os
+    import signal
+    import threading
+    import time
+
+    ended: list[int] = []
+    monkeypatch.setattr(tune_live, "end_process", ended.append)
+    monkeypatch.setattr(tune_live, "SHUTDOWN_BOUND_S", 0.2)
+    monkeypatch.setattr(tune_live, "SHUTDOWN_TIMEOUT_S", 1.0)
+    before = signal.getsignal(signal.SIGINT)
+
+    def serve(stuck_s: float) -> None:
+        class App(_FakeApp):
+            def wait(self) -> None:  # a server thread that takes stuck_s to end, then Ctrl-C
+                threading.Thread(target=time.sleep, args=(stuck_s,), daemon=True).start()
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5)  # interrupted by the signal's KeyboardInterrupt
+
+        tune_live.serve_live("s", "127.0.0.1", 8123, app_class=App)  # type: ignore[arg-type]
+
+    serve(stuck_s=0.8)  # the threads' join outlasts the bound: the watchdog ends the process
+    assert ended == [0]
+    ended.clear()
+    serve(stuck_s=0.0)
+    time.sleep(0.4)
+    assert ended == [] and signal.getsignal(signal.SIGINT) is before

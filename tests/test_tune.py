@@ -35,7 +35,7 @@ from amorctl.outputs.mcap_log import (
     write_rollout_mcap,
 )
 from amorctl.outputs.plots import plot_rollout
-from amorctl.tune.live import SHUTDOWN_TIMEOUT_S
+from amorctl.tune.live import SHUTDOWN_BOUND_S
 from amorctl.tune.session import PinnedMotion, run_tune
 
 torch.set_num_threads(1)
@@ -547,8 +547,8 @@ def test_live_page_in_headless_chromium(
             browser.close()
     finally:
         proc.send_signal(signal.SIGINT)
-        try:  # the page's own shutdown is bounded: 10 s for the loop + SHUTDOWN_TIMEOUT_S for threads
-            proc.wait(timeout=10 + SHUTDOWN_TIMEOUT_S + 30)
+        try:  # Ctrl-C ends the page within SHUTDOWN_BOUND_S (a watchdog ends a hung shutdown)
+            proc.wait(timeout=SHUTDOWN_BOUND_S + 30)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()

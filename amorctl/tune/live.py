@@ -17,6 +17,7 @@ unless told otherwise. Usage: docs/tune.md.
 from __future__ import annotations
 
 import contextlib
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -29,6 +30,13 @@ from amorctl.core.errors import AmorError
 from amorctl.core.live_auth import check_bind
 from amorctl.core.process_exit import end_process
 from amorctl.core.schedule import dump_schedule
+from amorctl.tune.live_shutdown import (
+    SHUTDOWN_BOUND_S,
+    SHUTDOWN_TIMEOUT_S,
+    join_threads,
+    on_interrupt,
+    shutdown_watchdog,
+)
 from amorctl.tune.session import PinnedMotion, StepRecord, geom_table
 
 SLIDER_MAX = 1.0
@@ -452,6 +460,8 @@ def serve_live(
             raise
     if announce is not None:
         announce(gate.url if gate is not None else app.url)
+    watchdogs: list[threading.Timer] = []
+    previous = on_interrupt(lambda: watchdogs.append(shutdown_watchdog(SHUTDOWN_BOUND_S, end_process)))
     app.start()
     try:
         with contextlib.suppress(KeyboardInterrupt):
@@ -459,26 +469,17 @@ def serve_live(
     finally:
         if gate is not None:
             gate.close()
-        _join_threads(set(threading.enumerate()) - before, timeout_s=SHUTDOWN_TIMEOUT_S)
-
-
-SHUTDOWN_TIMEOUT_S = 15.0
+        join_threads(set(threading.enumerate()) - before - set(watchdogs), timeout_s=SHUTDOWN_TIMEOUT_S)
+        for timer in watchdogs:
+            timer.cancel()
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 def end_live_process() -> NoReturn:
     """End the process after the live page stopped (exit status 0), without interpreter
-    finalization. Joining the page's Python threads (:func:`_join_threads`) is not enough: native
-    threads of the server stack can still be in C code when the interpreter tears its modules
-    down, which crashed ``tune --live`` with SIGSEGV at exit about once in 9 runs here. Every
-    output (saved keyframes) is already written and closed when the page stops."""
+    finalization. Joining the page's Python threads (:func:`amorctl.tune.live_shutdown.join_threads`)
+    is not enough: native threads of the server stack can still be in C code when the interpreter
+    tears its modules down, which crashed ``tune --live`` with SIGSEGV at exit about once in 9 runs
+    here. Every output (saved keyframes) is already written and closed when the page stops."""
     end_process(0)
-
-
-def _join_threads(threads: set[threading.Thread], timeout_s: float) -> None:
-    """Wait (bounded) for the page's threads to end. The server's threads are daemons and its stop
-    waits only a second for them; one still inside the websocket library's C code when the
-    interpreter finalizes crashed the process (SIGSEGV at exit on a loaded machine)."""
-    deadline = time.monotonic() + timeout_s
-    for thread in threads:
-        if thread is not threading.current_thread():
-            thread.join(timeout=max(0.0, deadline - time.monotonic()))
