@@ -45,6 +45,8 @@ def main() -> None:
     ap.add_argument("--plot", default=None, help="Fig. 7/8-style trace of both HLPs")
     ap.add_argument("--skip-train", action="store_true", help="evaluate existing bench-v30/bench-v2")
     args = ap.parse_args()
+    if args.budget_steps is not None and args.budget_steps < 1:
+        ap.error(f"--budget-steps must be >= 1, got {args.budget_steps}")
     torch.set_num_threads(1)
     root = Path(args.out) if args.out else Path(args.run) / "hlp"
     dirs = {30: root / "bench-v30", 2: root / "bench-v2"}

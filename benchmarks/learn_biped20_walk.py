@@ -134,6 +134,8 @@ def main() -> None:
         help="network precision; auto = bf16 autocast where the CPU has native bf16",
     )
     args = parser.parse_args()
+    if args.budget_steps is not None and args.budget_steps < 1:
+        parser.error(f"--budget-steps must be >= 1, got {args.budget_steps}")
 
     character = "biped20"
     dataset = args.out.parent / f"{args.out.name}-walking.mcap"

@@ -15,7 +15,6 @@ survival / MAE of each run) and writes a figure of the training curves against e
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,32 +22,27 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from science_runs import metrics_rows
 from stage import evaluate_clips
 
+from amorctl.train.pretrained_export import wall_time_s
 from amorctl.train.rundir import RunDir
 
 CURVES = (("episode/length", "training episode length (steps)"), ("return/scalarized", "return · w"))
 WINDOW = 25  # iterations the end-of-training figures average over
 
 
-def read_metrics(run: Path) -> dict[str, np.ndarray]:
-    """metrics.csv as columns of floats (missing cells NaN)."""
-    with (run / "metrics.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    keys = rows[0].keys() if rows else []
-    return {k: np.array([float(r[k]) if r.get(k) not in (None, "") else np.nan for r in rows]) for k in keys}
-
-
 def row(label: str, run_dir: Path, episodes: int, seed: int) -> dict[str, Any]:
     """The run's evaluation per clip and its training figures."""
     run = RunDir.open(run_dir)
     meta = run.checkpoint().trainer.meta
-    metrics = read_metrics(run_dir)
+    rows = metrics_rows(run_dir)
+    metrics = {k: np.array([float(r[k]) if r.get(k) else np.nan for r in rows]) for k in rows[0]}
     clips = evaluate_clips(run, episodes, seed)
     return {
         "label": label,
         "env_steps": int(meta["env_steps"]),
-        "wall_s": float(np.nansum(metrics.get("time/iteration_s", np.array([np.nan])))),
+        "wall_s": wall_time_s(run_dir / "metrics.csv"),
         "episode_length": float(np.nanmean(metrics["episode/length"][-WINDOW:])),
         "clips": clips,
         "metrics": metrics,
@@ -111,6 +105,8 @@ def main(argv: list[str] | None = None) -> None:
         label, _, folder = spec.partition("=")
         if not folder:
             parser.error(f"--run {spec!r}: write LABEL=DIR")
+        if not (Path(folder) / "metrics.csv").is_file():
+            parser.error(f"--run {spec!r}: {folder} is not a run directory (no metrics.csv)")
         rows.append(row(label, Path(folder), args.episodes, args.seed))
     print(markdown(rows))
     if args.figure:

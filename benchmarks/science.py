@@ -391,6 +391,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--kfixed-episodes", type=int, default=8)
     p.add_argument("--other-report", default="", help="markdown naming the other character's report")
     args = p.parse_args(argv)
+    if args.budget_steps is not None and args.budget_steps < 1:
+        p.error(f"--budget-steps must be >= 1, got {args.budget_steps}")
     args.out = args.out or Path(f"runs/science-{args.character}")
     parts = [s.strip() for s in args.only.split(",") if s.strip()]
     bad = [s for s in parts if s not in PARTS]

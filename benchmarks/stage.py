@@ -248,6 +248,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-episodes", type=int, default=8, help="episodes per clip at the stage's end")
     parser.add_argument("--eval-seed", type=int, default=1)
     args = parser.parse_args(argv)
+    if args.budget_steps < 0 or args.max_iterations < 0:
+        parser.error("--budget-steps and --max-iterations must be >= 0 (0: no such limit)")
     try:
         record = stage(args)
     except AmorError as err:  # one line, as amorctl's commands do (AMORCTL_DEBUG=1: the traceback)
