@@ -44,7 +44,8 @@ from amorctl.train.loop import train_run
 from amorctl.train.pretrained_export import DATASET_FILE, export_pretrained, git_commit
 from amorctl.train.rundir import CONFIG_FILE, RunDir
 
-#: Iterations a stage may run at most (the wall clock ends it first).
+#: ``run.iterations`` of a stage without ``--max-iterations``: the config's largest value (the
+#: wall clock ends the stage long before; ``run.iterations`` only bounds the loop).
 OPEN_ENDED = 100_000_000
 FIGURE = "stages.png"
 
@@ -169,7 +170,8 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         resume = False
     before = RunDir(work).checkpoint().trainer.meta if resume else {}
     start_iteration, start_steps = int(before.get("iteration", 0)), int(before.get("env_steps", 0))
-    config = override(config, run__iterations=start_iteration + (args.max_iterations or OPEN_ENDED))
+    iterations = start_iteration + args.max_iterations if args.max_iterations else OPEN_ENDED
+    config = override(config, run__iterations=iterations)
     began = time.perf_counter()
     limit = args.minutes * 60.0
     step_limit = start_steps + args.budget_steps if args.budget_steps else None
