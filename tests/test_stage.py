@@ -101,6 +101,11 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     assert "continues with the run's own config" in capsys.readouterr().err
     run_stage(tmp_path, "--budget-steps", "16")  # an env-step budget: 4 envs x 4 steps = one iteration
     assert "stage 2: 1 iterations, 16 env steps" in capsys.readouterr().out
+    stage_script.main(  # the documented command has no --max-iterations: the loop is open-ended
+        ["--run", "tiny", "--minutes", "5", "--shelf", str(tmp_path / "shelf"),
+         "--work", str(tmp_path / "work"), "--budget-steps", "16", "--eval-episodes", "1"]
+    )  # fmt: skip
+    assert "stage 3: 1 iterations, 16 env steps" in capsys.readouterr().out
     card_path = tmp_path / "shelf" / "tiny" / "card.json"
     card = json.loads(card_path.read_text())
     card_path.write_text(json.dumps({**card, "resumable": False}))
