@@ -112,7 +112,13 @@ def main() -> None:
     halves = [make_env(override(config, env__num_envs=n // 2), backend) for _ in range(2)]
     print(f"CPU: {cpu_description()}; torch threads {torch.get_num_threads()}")
     print(f"{args.preset}: {n} envs, {args.steps} control steps per measurement, median of {args.repeats}")
-    names = ("sequential", "sequential, forward on 1 torch thread", "overlapped", "overlapped, forward on 1 torch thread", "overlapped, 1 physics thread each")
+    names = (
+        "sequential",
+        "sequential, forward on 1 torch thread",
+        "overlapped",
+        "overlapped, forward on 1 torch thread",
+        "overlapped, 1 physics thread each",
+    )
     rows: dict[str, list[float]] = {name: [] for name in names}
     shares = []
     try:
