@@ -25,6 +25,8 @@ Usage:
 Lever experiments change one preset value per ``--set SECTION.KEY=VALUE`` (TOML value, repeatable;
 recorded in the report's rerun commands), e.g. ``--preset science_sc --set ppo.survival_weight=2``.
 Tiny smoke test: --budget-minutes 1 --sweep-episodes 2 --front-samples 16 --doc /tmp/s.md
+A run trained elsewhere (a shipped one trained on more clips, say) is measured on its walking clips
+with ``--run``: ``--run pretrained:biped20-repertoire --only sweeps,front,bar --out OUT --doc DOC``.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ from science_runs import ROOT, Clock, git_commit, machine, metrics_rows, run_sum
 from amorctl.analysis.eval_env import sweep_weights
 from amorctl.analysis.front import hypervolume
 from amorctl.core.config import TrainConfig, load_preset, override
+from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
 from amorctl.core.weights import format_weights
 from amorctl.motion.cache import default_dataset
@@ -58,6 +61,7 @@ from amorctl.sim.cpus import available_cpus
 from amorctl.train.rundir import RunDir
 
 PARTS = ("train", "sweeps", "front", "bar", "ppo", "curves", "kfixed")
+RUN_PARTS = ("sweeps", "front", "bar")  # what --run measures: the parts that need one run only
 
 
 # ------------------------------------------------------------------------------------ parts
@@ -83,6 +87,14 @@ class Science:
         self.moppo = self.out / "moppo"
         self.ppo = self.out / "ppo-uniform"
         self.dataset = self.out / "walking.mcap"
+        #: the clips sweeps and the bar draw from: None for the protocol's own run (its dataset is
+        #: the walking clips); a run measured with ``--run`` rolls out on its walking clips only
+        self.motions: list[str] | None = None
+        if args.run:
+            run = RunDir.open(args.run)
+            self.moppo = run.path
+            self.run_clips = len(load_dataset(run.dataset_path()).clips)
+            self.motions = [c.name for c in walking_subset(load_dataset(run.dataset_path())).clips]
 
     # -- config and runs
     def base_config(self, **changes: Any) -> TrainConfig:
@@ -133,8 +145,15 @@ class Science:
             "character": a.character,
             "preset": a.preset,
             "settings": a.set_text,
-            "dataset": f"the {len(load_dataset(self.dataset).clips)} walking clips of the built-in set "
-            f"(`walk`, `walker/*`)",
+            "dataset": (
+                f"the {len(self.motions)} walking clips (`walk`, `walker/*`) of the measured run's "
+                f"{self.run_clips}-clip dataset"
+                if self.motions
+                else f"the {len(load_dataset(self.dataset).clips)} walking clips of the built-in set "
+                f"(`walk`, `walker/*`)"
+            ),
+            "run": a.run or None,
+            "motions": self.motions,
             "budget_minutes": None if a.budget_steps else a.budget_minutes,
             "budget_steps": a.budget_steps,
             "out": str(self.out),
@@ -217,12 +236,14 @@ class Science:
         return math.inf if self.clock.at is None else self.clock.at - reserve_s
 
     def policy(self) -> tuple[Any, TrainConfig]:
-        run = RunDir.open(self.moppo)
+        run = RunDir.open(self.args.run or self.moppo)  # pretrained:NAME resolves its files itself
         return run.policy(), run.config
 
     def part_sweeps(self) -> None:
         pol, cfg = self.policy()
-        res, raw = measure_sweeps(pol, cfg, episodes=self.args.sweep_episodes, seed=self.args.eval_seed)
+        res, raw = measure_sweeps(
+            pol, cfg, episodes=self.args.sweep_episodes, seed=self.args.eval_seed, motions=self.motions
+        )
         fig = self.img / f"{self.figure_stem}-sweeps.png"
         if plot_sweeps(res, raw, fig):
             res["figure"] = self.rel(fig)
@@ -236,7 +257,9 @@ class Science:
 
     def part_bar(self) -> None:
         pol, cfg = self.policy()
-        self.results["bar"] = measure_bar(pol, cfg, episodes=self.args.bar_episodes, seed=self.args.eval_seed)
+        self.results["bar"] = measure_bar(
+            pol, cfg, episodes=self.args.bar_episodes, seed=self.args.eval_seed, motions=self.motions
+        )
 
     def part_curves(self) -> None:
         a = self.args
@@ -369,6 +392,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--doc", type=Path, default=ROOT / "docs" / "science.md", help="report (figures in its img/)"
     )
     p.add_argument("--skip-train", action="store_true", help="measure existing runs; train nothing")
+    p.add_argument(
+        "--run",
+        default="",
+        help="measure this trained run (a run directory or pretrained:NAME) instead of OUT/moppo: "
+        f"parts {', '.join(RUN_PARTS)} only, on the walking clips of the run's own dataset",
+    )
     p.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts of {', '.join(PARTS)}")
     p.add_argument("--deadline", default=None, metavar="HH:MM", help="UTC; stop training / skip parts then")
     p.add_argument(
@@ -399,6 +428,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if bad:
         p.error(f"--only: unknown part(s) {', '.join(bad)}; parts: {', '.join(PARTS)}")
     args.parts = parts
+    if args.run:
+        other = [s for s in parts if s not in RUN_PARTS]
+        if other:
+            p.error(f"--run measures one trained run: parts {', '.join(RUN_PARTS)}, not {', '.join(other)}")
+        args.skip_train = True
     args.set_text = [text for _, _, text in args.set]
     args.set = {key: value for key, value, _ in args.set}
     return args
@@ -409,8 +443,11 @@ def main(argv: list[str] | None = None) -> None:
     import torch
 
     torch.set_num_threads(available_cpus())
-    sci = Science(args)
-    if not sci.dataset.exists():
+    try:
+        sci = Science(args)
+    except AmorError as err:  # --run: not a run, or its dataset is missing
+        raise SystemExit(f"error: --run: {err}") from None
+    if not args.run and not sci.dataset.exists():
         args.out.mkdir(parents=True, exist_ok=True)
         save_subset(walking_subset(load_dataset(default_dataset(args.character))), sci.dataset)
     sci.meta()

@@ -55,9 +55,11 @@ def measure_sweeps(
     episodes: int,
     seed: int,
     levels: Sequence[float] = DEFAULT_SWEEP_LEVELS,
+    motions: Sequence[str] | None = None,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Claim (ii): ``weight_sweep`` (what ``evaluate --sweep`` reports) for every objective, with
-    the smooth sweep's action rate and joint-velocity RMS on the same episodes.
+    the smooth sweep's action rate and joint-velocity RMS on the same episodes. ``motions``: the
+    clips episodes draw from (None: every clip of the run's dataset).
 
     Returns:
         (results dict, {objective: returns [L, E]} for the figure).
@@ -68,7 +70,7 @@ def measure_sweeps(
     raw: dict[str, np.ndarray] = {}
     smooth_sweeps: list[dict[str, Any]] = []
     for name in names:
-        ws = weight_sweep(policy, config, name, levels=levels, episodes=episodes, seed=seed)
+        ws = weight_sweep(policy, config, name, levels=levels, episodes=episodes, seed=seed, motions=motions)
         if name == "smooth" and ws.motion is not None:  # the same episodes' action rate, joint speed
             smooth_sweeps.append(ws.motion.to_dict())
         stats = level_stats(ws.levels, ws.returns, ws.survival)
@@ -171,15 +173,20 @@ def tracking_heavy_text(names: Sequence[str]) -> str:
     return ",".join(pairs)
 
 
-def measure_bar(policy: Any, config: TrainConfig, *, episodes: int, seed: int) -> dict[str, Any]:
+def measure_bar(
+    policy: Any, config: TrainConfig, *, episodes: int, seed: int, motions: Sequence[str] | None = None
+) -> dict[str, Any]:
     """Learning bar: survival over 10 s under uniform weights; joint MAE under tracking-heavy weights
-    vs uniform, on the same starts."""
+    vs uniform, on the same starts. ``motions``: ``episodes`` split evenly over these clips (None:
+    episodes draw from every clip of the run's dataset)."""
     names = tuple(policy.objectives)
-    out: dict[str, Any] = {"episodes": episodes, "seed": seed}
+    if motions:
+        episodes = max(1, episodes // len(motions))  # evaluate_setting runs this many per motion
+    out: dict[str, Any] = {"episodes": episodes * len(motions or [0]), "seed": seed}
     settings = {"uniform": np.full(len(names), 1.0 / len(names))}
     settings["tracking_heavy"] = parse_weights(tracking_heavy_text(names), names)
     for key, w in settings.items():
-        res = evaluate_setting(policy, config, w, label=key, episodes=episodes, seed=seed)
+        res = evaluate_setting(policy, config, w, label=key, motions=motions, episodes=episodes, seed=seed)
         met = res.metrics
         out[key] = {
             "weights": format_weights(w, names),
