@@ -183,3 +183,18 @@ def test_the_shipped_biped20_repertoire_matches_its_card(tmp_path, monkeypatch, 
         assert metrics["survival_rate"] == (1.0 if survives else 0.0), (clip, metrics)
         if survives:
             assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 2.0, metrics
+
+
+def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None:
+    from amorctl.cli.runs import _headline
+
+    clip = {"walk": 1.0, "walker/turn_left0": 0.9, "backflip": 0.0, "run": 0.5}
+    stage = {"evaluation_clips": {k: {"survival": v, "joint_mae_deg": 10.0} for k, v in clip.items()}}
+    line = _headline({"stages": [{"evaluation_clips": {}}, stage]})
+    assert line == "2 of 4 clips ≥ 90% survival (walk, walker); mean survival 60% (uniform w)"
+    family = {
+        "walk": {"survival": 1.0, "joint_mae_deg": 9.0},
+        "run": {"survival": 0.0, "joint_mae_deg": 21.0},
+    }
+    assert _headline({"stages": [{"evaluation": family}]}).startswith("survival 50%, joint MAE 15.0°")
+    assert _headline({"summary": {"episode/survival": 0.87}}) == "survival 87% (training)"

@@ -74,11 +74,26 @@ def _families(motions: list[str]) -> str:
     return ", ".join(dict.fromkeys(clip_family(m) for m in motions))
 
 
+#: A clip counts as tracked when this share of its evaluation episodes survive (the repertoire
+#: targets' bar, docs/repertoire.md).
+TRACKED_SURVIVAL = 0.9
+
+
 def _headline(card: dict[str, Any]) -> str:
-    """The entry's headline figures: its last stage's evaluation (uniform ``w``, per family
+    """The entry's headline figures: its last stage's evaluation at uniform ``w`` (how many clips
+    are tracked and which families, per clip when the stage recorded clips, else per family
     averaged), else the last training iteration's survival."""
     stages = card.get("stages") or []
+    clips = stages[-1].get("evaluation_clips") if stages else None
     evaluation = stages[-1].get("evaluation") if stages else None
+    if clips:
+        tracked = [name for name, v in clips.items() if v["survival"] >= TRACKED_SURVIVAL]
+        mean = sum(v["survival"] for v in clips.values()) / len(clips)
+        which = f" ({_families(tracked)})" if tracked else ""
+        return (
+            f"{len(tracked)} of {len(clips)} clips ≥ {TRACKED_SURVIVAL:.0%} survival{which}; "
+            f"mean survival {mean:.0%} (uniform w)"
+        )
     if evaluation:
         survival = sum(v["survival"] for v in evaluation.values()) / len(evaluation)
         mae = sum(v["joint_mae_deg"] for v in evaluation.values()) / len(evaluation)
