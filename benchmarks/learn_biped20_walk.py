@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import itertools
 import math
 import time
@@ -50,20 +49,10 @@ WALKING = ("walk", "walker/")
 
 def walking_subset(lib: MotionLibrary) -> MotionLibrary:
     """The library restricted to its walking clips (names ``walk`` and ``walker/*``)."""
-    keep = [c for c in lib.clips if c.name == "walk" or c.name.startswith("walker/")]
+    keep = [c.name for c in lib.clips if c.name == "walk" or c.name.startswith("walker/")]
     if not keep:
         raise SystemExit(f"no walking clips in the dataset (clips: {[c.name for c in lib.clips]})")
-    index = np.concatenate([np.arange(c.start, c.start + c.num_frames) for c in keep])
-    clips, start = [], 0
-    for c in keep:
-        clips.append(dataclasses.replace(c, start=start))
-        start += c.num_frames
-    arrays = {
-        f.name: getattr(lib, f.name)[index]
-        for f in dataclasses.fields(lib)
-        if isinstance(getattr(lib, f.name), np.ndarray)
-    }
-    return dataclasses.replace(lib, clips=tuple(clips), **arrays)
+    return lib.subset(keep)
 
 
 def save_subset(lib: MotionLibrary, path: Path) -> Path:

@@ -11,10 +11,12 @@ against cumulative env steps. A stage stopped with Ctrl-C ends like one that ran
 checkpoint it reached is written back, marked ``interrupted``).
 
 The first stage creates the run from a preset (``--preset``, ``--character``, ``--dataset``,
-``--set SECTION.KEY=VALUE``):
+``--clips`` to train on some of its clips, ``--set SECTION.KEY=VALUE``):
 
     python benchmarks/stage.py --run biped20-repertoire --minutes 150 --preset science --character biped20
     python benchmarks/stage.py --run biped20-repertoire --minutes 150        # every later stage
+    python benchmarks/stage.py --run humanoid36-walk --minutes 150 --preset science \
+        --character humanoid36 --clips walk --clips walker/            # the walking clips only
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from amorctl.analysis.tracking_metrics import evaluate_setting
 from amorctl.core.config import TrainConfig, load_config, load_preset, override, to_toml
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
+from amorctl.motion.cache import default_dataset
+from amorctl.motion.dataset import load_dataset, load_encoder_bytes, write_dataset
 from amorctl.plugins.backends.host import load_library
 from amorctl.train import pretrained
 from amorctl.train.episode_stats import clip_family
@@ -60,7 +64,33 @@ def first_config(args: argparse.Namespace) -> TrainConfig:
         config = override(config, env__dataset=str(Path(args.dataset).resolve()))
     for key, value, _text in args.set:
         config = override(config, **{key: value})
+    if args.clips:
+        subset = Path(args.work) / f"{args.run}-clips.mcap"  # beside the work copy; the entry copies it
+        config = override(config, env__dataset=str(clip_subset(config, args.clips, subset).resolve()))
     return config
+
+
+def clip_subset(config: TrainConfig, queries: list[str], out: Path) -> Path:
+    """Write the clips of ``config``'s dataset that ``queries`` name (a clip's name, or a family
+    prefix ending in ``/`` such as ``walker/``) to ``out``, with the dataset's motion encoder.
+
+    Raises:
+        AmorError: a query names no clip (the message lists the clips there are).
+    """
+    source = Path(config.env.dataset) if config.env.dataset else default_dataset(config.env.character)
+    library = load_dataset(source)
+    names = [c.name for c in library.clips]
+
+    def named(name: str, query: str) -> bool:
+        return name == query or (query.endswith("/") and name.startswith(query))
+
+    for query in queries:
+        if not any(named(n, query) for n in names):
+            raise AmorError(f"--clips {query}: no such clip in {source}; clips: {', '.join(names)}")
+    keep = [n for n in names if any(named(n, q) for q in queries)]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_dataset(out, library.subset(keep), encoder=load_encoder_bytes(source))
+    return out
 
 
 def work_copy(entry: Path, work: Path) -> TrainConfig:
@@ -153,10 +183,10 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
             raise AmorError(
                 f"{entry}: not a resumable entry (export it with `runs export-pretrained --resumable`)"
             )
-        if args.preset or args.config or args.set or args.character or args.dataset:
+        if args.preset or args.config or args.set or args.character or args.dataset or args.clips:
             raise AmorError(
                 f"{entry} exists: a later stage continues with the run's own config "
-                "(--preset, --config, --character, --dataset and --set only start a run)"
+                "(--preset, --config, --character, --dataset, --clips and --set only start a run)"
             )
         stages = list(card.get("stages") or [])
         config = work_copy(entry, work)
@@ -234,6 +264,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--config", default="", help="first stage: a config file instead of a preset")
     parser.add_argument("--character", default="", help="first stage: the character")
     parser.add_argument("--dataset", default="", help="first stage: the clips (default: the built-in set)")
+    parser.add_argument(
+        "--clips",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="first stage: train on these clips of the dataset only (a name, or a family prefix "
+        "ending in / such as walker/; repeatable)",
+    )
     parser.add_argument(
         "--set",
         action="append",

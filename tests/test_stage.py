@@ -18,7 +18,7 @@ import stage as stage_script
 
 from amorctl.core.config import TrainConfig, merge, to_toml
 from amorctl.envs.synthetic import synthetic_library
-from amorctl.motion.dataset import write_dataset
+from amorctl.motion.dataset import load_dataset, write_dataset
 from amorctl.registry import get_registry
 from amorctl.train.checkpoint import load_checkpoint
 from amorctl.train.episode_stats import clip_family
@@ -132,3 +132,26 @@ def test_lever_rows_tabulates_runs_and_clips() -> None:
     assert "| plain | 2.50 M | 10 min | 80 | 1 of 2 | 50% | 10.0° |" in text
     assert "| adaptive | 2.50 M | 10 min | 80 | 0 of 2 | 69% | 10.0° |" in text
     assert "| jump | 0% / 12.0° | 50% / 12.0° |" in text
+
+
+def test_first_stage_trains_on_the_clips_named(tmp_path: Path, capsys) -> None:
+    config = tiny_config(tmp_path)
+    lib = load_dataset(tmp_path / "ds.mcap")
+    names = ("walk", "backflip")
+    lib = dataclasses.replace(
+        lib, clips=tuple(dataclasses.replace(c, name=n) for c, n in zip(lib.clips, names, strict=True))
+    )
+    write_dataset(tmp_path / "ds.mcap", lib)
+    (tmp_path / "tiny.toml").write_text(to_toml(config))
+    with pytest.raises(SystemExit):
+        run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"), "--clips", "walker/")
+    assert "--clips walker/: no such clip" in capsys.readouterr().err
+    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"), "--clips", "walk")
+    entry = tmp_path / "shelf" / "tiny"
+    assert json.loads((entry / "card.json").read_text())["motions"] == ["walk"]
+    shipped = load_dataset(entry / "dataset.mcap")
+    assert [c.name for c in shipped.clips] == ["walk"]
+    np.testing.assert_array_equal(shipped.joint_pos, lib.joint_pos[: lib.clips[0].num_frames])
+    with pytest.raises(SystemExit):
+        run_stage(tmp_path, "--clips", "walk")  # a later stage keeps the run's clips
+    assert "continues with the run's own config" in capsys.readouterr().err

@@ -9,9 +9,13 @@ left then right), L = latent size. Quaternions (w, x, y, z); world frame is MuJo
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from amorctl.core.errors import AmorError
 
 
 @dataclass(frozen=True)
@@ -85,3 +89,23 @@ class MotionLibrary:
     def clip_duration(self, clip: ClipInfo) -> float:
         """Seconds spanned by the clip's frames at ``fps``."""
         return (clip.num_frames - 1) / self.fps
+
+    def subset(self, names: Sequence[str]) -> MotionLibrary:
+        """The library of the named clips only (in this library's order): their frames, latents
+        and clip records, renumbered. AmorError when none of the names is a clip here."""
+        keep = [c for c in self.clips if c.name in set(names)]
+        if not keep:
+            raise AmorError(
+                f"none of {', '.join(names) or 'no names'} is a clip of the {self.character} dataset"
+            )
+        index = np.concatenate([np.arange(c.start, c.start + c.num_frames) for c in keep])
+        clips, start = [], 0
+        for c in keep:
+            clips.append(dataclasses.replace(c, start=start))
+            start += c.num_frames
+        arrays = {
+            f.name: getattr(self, f.name)[index]
+            for f in dataclasses.fields(self)
+            if isinstance(getattr(self, f.name), np.ndarray)
+        }
+        return dataclasses.replace(self, clips=tuple(clips), **arrays)
