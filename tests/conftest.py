@@ -69,10 +69,12 @@ def toy_hlp_config():
     )
 
 
-def train_tiny_tracking_run(root: Path, label: str, **env: object) -> Path:
-    """Train ``root/run``: one iteration of biped20 on two 1 s synthetic clips ``sway_a`` /
-    ``sway_b`` (``root/ds.mcap``), 4 envs, 16-wide networks, one torch thread; ``env`` overrides
-    the ``[env]`` table (``episode_seconds`` 0.4 by default)."""
+def train_tiny_tracking_run(
+    root: Path, label: str, *, clip_names: tuple[str, ...] = ("sway_a", "sway_b"), **env: object
+) -> Path:
+    """Train ``root/run``: one iteration of biped20 on 1 s synthetic clips named ``clip_names``
+    (``root/ds.mcap``), 4 envs, 16-wide networks, one torch thread; ``env`` overrides the
+    ``[env]`` table (``episode_seconds`` 0.4 by default)."""
     import dataclasses
 
     import torch
@@ -83,10 +85,9 @@ def train_tiny_tracking_run(root: Path, label: str, **env: object) -> Path:
     from amorctl.registry import get_registry
     from amorctl.train.loop import train_run
 
-    lib = synthetic_library(get_registry().character("biped20"), num_clips=2, seconds=1.0, seed=3)
-    clips = tuple(
-        dataclasses.replace(c, name=n) for c, n in zip(lib.clips, ("sway_a", "sway_b"), strict=True)
-    )
+    biped20 = get_registry().character("biped20")
+    lib = synthetic_library(biped20, num_clips=len(clip_names), seconds=1.0, seed=3)
+    clips = tuple(dataclasses.replace(c, name=n) for c, n in zip(lib.clips, clip_names, strict=True))
     write_dataset(root / "ds.mcap", dataclasses.replace(lib, clips=clips))
     config = merge(
         TrainConfig(),

@@ -161,38 +161,20 @@ def test_env_step_budgets_end_training_at_the_same_steps_on_any_machine(tmp_path
     assert RunDir.open(out).checkpoint().trainer.meta["env_steps"] == 224  # continues to 7 iterations
 
 
-def test_run_option_measures_a_trained_run_on_its_walking_clips_only(tmp_path, capsys) -> None:
+def test_run_option_measures_a_trained_run_on_its_walking_clips_only(
+    tmp_path, capsys, make_tracking_run
+) -> None:
     """``--run``: a run trained elsewhere, on more clips than the walking ones, is measured (sweeps
     and bar) with rollouts on its walking clips; parts that train are refused in one line."""
-    import dataclasses
     import json
 
     import science
 
-    from amorctl.core.config import TrainConfig, merge
-    from amorctl.envs.synthetic import synthetic_library
-    from amorctl.motion.dataset import write_dataset
     from amorctl.registry import get_registry
-    from amorctl.train.loop import train_run
 
-    lib = synthetic_library(get_registry().character("biped20"), num_clips=3, seconds=1.0, seed=3)
-    names = ("walk", "backflip", "walker/turn_left0")
-    clips = tuple(dataclasses.replace(c, name=n) for c, n in zip(lib.clips, names, strict=True))
-    write_dataset(tmp_path / "ds.mcap", dataclasses.replace(lib, clips=clips))
-    config = merge(
-        TrainConfig(),
-        {
-            "run": {"iterations": 1, "tensorboard": False, "threads": 1},
-            "env": {"kind": "tracking", "character": "biped20", "dataset": str(tmp_path / "ds.mcap"),
-                    "num_envs": 4, "episode_seconds": 0.2},
-            "network": {"actor_hidden": [8], "critic_hidden": [8]},
-            "ppo": {"num_steps": 4, "num_epochs": 1, "num_minibatches": 1, "precision": "fp32"},
-        },
-        "test",
-    )  # fmt: skip
-    train_run(config, tmp_path / "run")
+    run = make_tracking_run(tmp_path, "science --run", clip_names=("walk", "backflip", "walker/turn_left0"))
     out = tmp_path / "out"
-    common = ["--run", str(tmp_path / "run"), "--out", str(out), "--doc", str(out / "science.md")]
+    common = ["--run", str(run), "--out", str(out), "--doc", str(out / "science.md")]
     with pytest.raises(SystemExit):
         science.main([*common, "--only", "train,sweeps"])
     assert "parts sweeps, front, bar, not train" in capsys.readouterr().err
