@@ -92,6 +92,7 @@ class Science:
         self.motions: list[str] | None = None
         if args.run:
             run = RunDir.open(args.run)
+            args.character = run.config.env.character  # the run's, whatever --character said
             self.moppo = run.path
             self.run_clips = len(load_dataset(run.dataset_path()).clips)
             self.motions = [c.name for c in walking_subset(load_dataset(run.dataset_path())).clips]
@@ -137,13 +138,27 @@ class Science:
             + f" --out {self.out}"
             + "".join(f" --set {shlex.quote(t)}" for t in a.set_text)
         )
+        rerun = {
+            "train": base + " --only train",
+            "sweeps": base + " --skip-train --only sweeps",
+            "front": base + " --skip-train --only front",
+            "bar": base + " --skip-train --only bar",
+            "curves": base + " --only ppo,curves",
+            "kfixed": base + " --only kfixed",
+            "other_character": base.replace(f"--character {a.character}", f"--character {other}").replace(
+                str(self.out), f"runs/science-{other}"
+            ),
+        }
+        if a.run:  # one run measured: its own parts only
+            base = f"python benchmarks/science.py --run {a.run} --out {self.out} --doc {self.doc}"
+            rerun = {part: f"{base} --only {part}" for part in RUN_PARTS}
         self.results["meta"] = {
             "command": shlex.join([Path(sys.executable).name, *sys.argv]),
             "commit": git_commit(),
             "date_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
             "machine": machine(),
             "character": a.character,
-            "preset": a.preset,
+            "preset": "the run's own config" if a.run else a.preset,
             "settings": a.set_text,
             "dataset": (
                 f"the {len(self.motions)} walking clips (`walk`, `walker/*`) of the measured run's "
@@ -158,28 +173,26 @@ class Science:
             "budget_steps": a.budget_steps,
             "out": str(self.out),
             "other_report": a.other_report,
-            "rerun": {
-                "train": base + " --only train",
-                "sweeps": base + " --skip-train --only sweeps",
-                "front": base + " --skip-train --only front",
-                "bar": base + " --skip-train --only bar",
-                "curves": base + " --only ppo,curves",
-                "kfixed": base + " --only kfixed",
-                "other_character": base.replace(f"--character {a.character}", f"--character {other}").replace(
-                    str(self.out), f"runs/science-{other}"
-                ),
-            },
+            "rerun": rerun,
         }
 
     def protocol(self) -> str:
         a = self.args
         settings = (" with " + ", ".join(f"`{t}`" for t in a.set_text)) if a.set_text else ""
-        return f"""## Protocol
-
-- **Training** (`train`): `{a.preset}` preset{settings} on the walking clips,
+        training = (
+            f"""- **The run** (`--run`): `{a.run}`, trained elsewhere (how: its card or run directory),
+  not trained here. Its dataset holds {self.run_clips} clips; every rollout below uses its
+  walking clips only ({", ".join(f"`{m}`" for m in self.motions or [])}); the bar splits its
+  episodes evenly over them."""
+            if a.run
+            else f"""- **Training** (`train`): `{a.preset}` preset{settings} on the walking clips,
   {a.num_envs or "the preset's"} envs, seed {a.seed}, one CPU thread per allowed core (the run is
   pinned with `taskset`); MOPPO samples `w` per episode as the preset says; checkpoints every
-  {a.checkpoint_every} iterations, all kept.
+  {a.checkpoint_every} iterations, all kept."""
+        )
+        return f"""## Protocol
+
+{training}
 - **Claim (ii)** (`sweeps`): for each objective k, `amorctl.analysis.level_sweep.weight_sweep` (what
   `amorctl evaluate RUN --sweep k` reports): w_k at 0, .25, .5, .75, 1, the rest share 1 - w_k
   equally; {a.sweep_episodes} episodes of 10 s per level on the walking clips (seed {a.eval_seed}),
@@ -461,6 +474,8 @@ def main(argv: list[str] | None = None) -> None:
             if RunDir(run).exists():
                 made = sci.results.get(key, {}).get("made_by")
                 sci.results[key] = run_summary(run, label) | ({"made_by": made} if made else {})
+        if args.run:  # the run as the user named it (pretrained:NAME), its own weight sampling
+            sci.results["train"] |= {"run": args.run, "weights": "MOPPO (the run's own sampling)"}
     for part in PARTS:
         if part not in args.parts or (part in ("train", "ppo") and args.skip_train):
             continue
@@ -486,7 +501,9 @@ def main(argv: list[str] | None = None) -> None:
         sci.save()
     for part in PARTS:
         if part not in args.parts and part not in sci.results:
-            sci.results["skipped"][part] = args.skip_reason
+            trains = args.run and part not in RUN_PARTS
+            why = "a run measured with --run: no training here" if trains else args.skip_reason
+            sci.results["skipped"][part] = why
     sci.save()
     print(f"report: {args.doc}; results: {sci.json_path}")
 

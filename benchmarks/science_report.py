@@ -139,7 +139,13 @@ def render_markdown(results: dict[str, Any], protocol: str) -> str:
         f"- machine: {meta.get('machine', '?')}",
         f"- character: {meta.get('character', '?')}, preset `{meta.get('preset', '?')}`, "
         f"dataset: {meta.get('dataset', '?')}",
-        f"- MOPPO budget: {_budget(meta)}; run directory `{meta.get('out', '?')}` (not in the repository)",
+        (
+            f"- measured run: `{meta['run']}`, trained elsewhere (how: its card); results in "
+            f"`{meta.get('out', '?')}` (not in the repository)"
+            if meta.get("run")
+            else f"- MOPPO budget: {_budget(meta)}; run directory `{meta.get('out', '?')}` "
+            "(not in the repository)"
+        ),
         "",
         "## Summary",
         "",

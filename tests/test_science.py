@@ -187,3 +187,6 @@ def test_run_option_measures_a_trained_run_on_its_walking_clips_only(
     assert results["bar"]["episodes"] == 4  # 2 per walking clip
     assert 0.0 <= results["bar"]["uniform"]["survival_rate"] <= 1.0
     assert not (out / "moppo").exists()  # nothing trained
+    report = (out / "science.md").read_text()
+    assert f"measured run: `{run}`" in report and "**The run** (`--run`)" in report
+    assert "MOPPO budget" not in report and "no training here" in report
