@@ -32,6 +32,20 @@ def test_bins_cover_every_start_frame_of_every_clip() -> None:
     assert s.frame_bin.tolist() == [0] * 4 + [1] * 4 + [2, -1] + [3] * 4 + [4, -1]
 
 
+def test_bins_as_long_as_the_clips_weight_whole_clips_by_their_falls() -> None:
+    """Clip weighting is adaptive starts with one bin per clip: a clip is drawn in proportion to
+    its falls, its start frame uniform over the clip (RSI within it)."""
+    s = StartSampler(np.array([0, 10]), np.array([10, 16]), bin_frames=3000, fraction=1.0)
+    assert s.bin_lo.tolist() == [0, 10] and s.bin_hi.tolist() == [9, 15]
+    s.record(np.array([2, 7, 12]))  # two falls in clip 0, one in clip 1
+    np.testing.assert_allclose(s.probabilities(np.array([0, 1])), [2 / 3, 1 / 3])
+    ids = np.arange(6000)
+    _, clips, frames = s.draw(BatchRandom(np.random.default_rng(0)), ids, np.array([0, 1]))
+    assert abs(np.mean(clips == 0) - 2 / 3) < 0.03
+    assert set(frames[clips == 0].tolist()) == set(range(0, 9))  # every start frame of the clip
+    assert set(frames[clips == 1].tolist()) == set(range(10, 15))
+
+
 def test_falls_spread_backward_within_their_clip_only() -> None:
     s = _two_clips()
     assert s.probabilities(np.array([0, 1])) is None  # no fall yet: plain RSI
