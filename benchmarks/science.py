@@ -90,12 +90,14 @@ class Science:
         #: the clips sweeps and the bar draw from: None for the protocol's own run (its dataset is
         #: the walking clips); a run measured with ``--run`` rolls out on its walking clips only
         self.motions: list[str] | None = None
+        self.run_clips = 0  # clips in a --run's dataset
         if args.run:
             run = RunDir.open(args.run)
             args.character = run.config.env.character  # the run's, whatever --character said
             self.moppo = run.path
-            self.run_clips = len(load_dataset(run.dataset_path()).clips)
-            self.motions = [c.name for c in walking_subset(load_dataset(run.dataset_path())).clips]
+            library = load_dataset(run.dataset_path())
+            self.run_clips = len(library.clips)
+            self.motions = [c.name for c in walking_subset(library).clips]
 
     # -- config and runs
     def base_config(self, **changes: Any) -> TrainConfig:
