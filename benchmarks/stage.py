@@ -229,7 +229,7 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
             "iterations": int(after["iteration"]),
             "wall_clock_s": round(previous["wall_clock_s"] + wall, 1),
         },
-        "interrupted": bool(result.interrupted),
+        "interrupted": bool(result.signal),  # Ctrl-C or SIGTERM; the time or step budget is a normal end
         "evaluation": by_family(per_clip),
         "evaluation_clips": per_clip,
         "evaluation_protocol": f"uniform w, {args.eval_episodes} episodes per clip, seed {args.eval_seed}",

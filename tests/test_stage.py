@@ -89,7 +89,7 @@ def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, c
     assert any(k.startswith("optimizer.") for k in staged)  # resumable: the training state is kept
 
 
-def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, capsys) -> None:
+def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, capsys, monkeypatch) -> None:
     config = tiny_config(tmp_path)
     (tmp_path / "tiny.toml").write_text(to_toml(config))
     with pytest.raises(SystemExit):
@@ -108,6 +108,15 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     assert "stage 3: 1 iterations, 16 env steps" in capsys.readouterr().out
     card_path = tmp_path / "shelf" / "tiny" / "card.json"
     card = json.loads(card_path.read_text())
+    assert [s["interrupted"] for s in card["stages"]] == [False] * 3  # budgets end a stage normally
+
+    def stopped_by_ctrl_c(*args, **kwargs):
+        return dataclasses.replace(train_run(*args, **kwargs), interrupted=True, signal="SIGINT")
+
+    monkeypatch.setattr(stage_script, "train_run", stopped_by_ctrl_c)
+    run_stage(tmp_path)
+    card = json.loads(card_path.read_text())
+    assert [s["interrupted"] for s in card["stages"]] == [False] * 3 + [True]
     card_path.write_text(json.dumps({**card, "resumable": False}))
     with pytest.raises(SystemExit):
         run_stage(tmp_path)
