@@ -152,18 +152,19 @@ def plot_stages(stages: list[dict[str, Any]], path: Path) -> bool:
         import matplotlib.pyplot as plt
     except ImportError:
         return False
-    fig, (ax_s, ax_m) = plt.subplots(1, 2, figsize=(11, 4))
-    for family in dict.fromkeys(f for _, ev in points for f in ev):
+    fig, (ax_s, ax_m) = plt.subplots(1, 2, figsize=(12.5, 4))
+    families = list(dict.fromkeys(f for _, ev in points for f in ev))
+    colors = plt.get_cmap("tab20")  # one colour per family (the default cycle repeats after 10)
+    for k, family in enumerate(families):
+        style = {"color": colors(k % 20), "marker": "os^D"[k % 4], "label": family}
         xs = [x / 1e6 for x, ev in points if family in ev]
-        ax_s.plot(xs, [ev[family]["survival"] for _, ev in points if family in ev], marker="o", label=family)
-        ax_m.plot(
-            xs, [ev[family]["joint_mae_deg"] for _, ev in points if family in ev], marker="o", label=family
-        )
+        ax_s.plot(xs, [ev[family]["survival"] for _, ev in points if family in ev], **style)
+        ax_m.plot(xs, [ev[family]["joint_mae_deg"] for _, ev in points if family in ev], **style)
     ax_s.set(xlabel="cumulative env steps (M)", ylabel="survival over the episode", ylim=(-0.02, 1.02))
     ax_m.set(xlabel="cumulative env steps (M)", ylabel="joint MAE (deg)")
     for ax in (ax_s, ax_m):
         ax.grid(alpha=0.3)
-    ax_s.legend(fontsize=7, ncol=2)
+    ax_m.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.suptitle("training stages: evaluation under uniform w at the end of each stage")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
