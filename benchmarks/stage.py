@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from science import config_setting
+from science_args import config_setting
 from science_runs import machine
 
 from amorctl.analysis.tracking_metrics import evaluate_setting
