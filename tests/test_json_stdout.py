@@ -63,6 +63,7 @@ def invocations(tmp: Path, run: Path, ds: Path) -> dict[str, list[str]]:
         "preprocess": ["preprocess", s(clip), "--character", "humanoid36", "--out", s(tmp / "walk.mcap"),
                        "--no-vae", "--json"],
         "data show": ["data", "show", s(ds), "--json"],
+        "data speeds": ["data", "speeds", s(ds), "--json"],
         "train": ["train", "--env", "toy", "--iterations", "1", "--num-envs", "8",
                   "--out", s(tmp / "runs" / "toy"), "--json"],
         "pareto": ["pareto", s(run), "--samples", "2", "--out", s(tmp / "pareto"), "--json"],
