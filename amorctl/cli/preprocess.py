@@ -47,6 +47,14 @@ def preprocess(
         list[str] | None, typer.Option("--holdout", help="Clip held out of VAE training (repeatable).")
     ] = None,
     seed: Annotated[int, typer.Option(help="Random seed of the VAE.")] = _DEFAULT.seed,
+    max_joint_speed: Annotated[
+        str | None,
+        typer.Option(
+            "--max-joint-speed",
+            help="IK retargeting: bound every joint's speed, rad/s, or 'motor' for the character's "
+            "no-load speed (default: 30 rad/s, a solver bound).",
+        ),
+    ] = None,
     json_out: JsonFlag = False,
 ) -> None:
     """Import, retarget onto --character, compute frames and VAE latents; write --out atomically."""
@@ -72,6 +80,7 @@ def preprocess(
         joint_map=joint_map,
         licence=licence,
         vae=cfg,
+        max_joint_speed=max_joint_speed,
     )
     if json_out:
         print_json(

@@ -7,6 +7,7 @@ and z_t is stored for every frame. Nothing is written unless every step succeede
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -17,6 +18,7 @@ import numpy as np
 
 from amorctl.core.errors import AmorError
 from amorctl.core.files import check_writable
+from amorctl.core.specs import CharacterSpec
 from amorctl.motion.builtin import builtin_clips, source_label
 from amorctl.motion.clips import ClipInfo, MotionLibrary
 from amorctl.motion.dataset import write_dataset
@@ -87,8 +89,10 @@ def process_clip(
     kin: CharacterKinematics,
     fmt: str | None,
     joint_map: Path | None,
+    max_joint_speed: float | None = None,
 ) -> tuple[CharacterMotion, dict[str, np.ndarray]]:
-    """Import, resample, retarget one file; returns the character motion and its frame arrays."""
+    """Import, resample, retarget one file (IK joints within ``max_joint_speed`` rad/s when given);
+    returns the character motion and its frame arrays."""
     spec = kin.spec
     opts = ImportOptions(
         name=name,
@@ -111,7 +115,7 @@ def process_clip(
             raise AmorError(f"{path}: holds motion for {motion.character!r}, not {spec.name!r}")
         char = finish_robot_clip(resample_character(motion, hz), kin)
     else:
-        char = retarget(resample_source(motion, hz), kin)
+        char = retarget(resample_source(motion, hz), kin, max_joint_speed)
     char = replace(char, source=source_label(path))
     arrays = clip_arrays(char, kin, hz)
     for key, a in arrays.items():
@@ -119,6 +123,32 @@ def process_clip(
             frame = int(np.argwhere(~np.isfinite(a))[0][0])
             raise AmorError(f"{path}: processing produced a non-finite {key} at frame {frame}")
     return char, arrays
+
+
+def joint_speed_bound(value: float | str | None, spec: CharacterSpec) -> float | None:
+    """``--max-joint-speed``: None (the IK's default bound), a speed in rad/s (> 0), or ``"motor"``
+    for the character's no-load speed; checked against the character before any work."""
+    if value is None:
+        return None
+    if spec.retarget != "ik":
+        raise AmorError(
+            f"--max-joint-speed: character {spec.name!r} retargets by {spec.retarget!r}, which copies "
+            "the source's joint angles; the bound applies to IK retargeting only"
+        )
+    if value == "motor":
+        if spec.actuator.no_load_speed is None:
+            raise AmorError(
+                f"--max-joint-speed motor: character {spec.name!r} has no no-load speed in its "
+                "actuator model; give a speed in rad/s"
+            )
+        return float(spec.actuator.no_load_speed)
+    try:
+        speed = float(value)
+    except ValueError:
+        raise AmorError(f"--max-joint-speed: {value!r} is neither a speed in rad/s nor 'motor'") from None
+    if not (math.isfinite(speed) and speed > 0):
+        raise AmorError(f"--max-joint-speed: {value!r} must be a positive speed in rad/s (or 'motor')")
+    return speed
 
 
 def preprocess(
@@ -132,15 +162,18 @@ def preprocess(
     vae: VaeConfig | None = VaeConfig(),  # noqa: B008 - frozen dataclass, safe as a default
     progress: Progress | None = None,
     licence: str | None = None,
+    max_joint_speed: float | str | None = None,
 ) -> PreprocessReport:
     """Build a motion dataset at ``out``; AmorError (and no file) on any bad input, and before any
-    work when ``out``'s folder is not writable."""
+    work when ``out``'s folder is not writable. ``max_joint_speed``: see :func:`joint_speed_bound`."""
     check_writable(Path(out).parent, "output folder", "make it writable or choose another --out")
     progress = progress or Progress()
     t0 = time.perf_counter()
     spec = get_registry().character(character)
+    bound = joint_speed_bound(max_joint_speed, spec)
     kin = character_kinematics(spec)
-    motions, per_clip = _process_clips(gather_inputs(files, builtin, fmt, licence), kin, joint_map, progress)
+    inputs = gather_inputs(files, builtin, fmt, licence)
+    motions, per_clip = _process_clips(inputs, kin, joint_map, progress, bound)
     t1 = time.perf_counter()
 
     lengths = np.array([a["frames"].shape[0] for a in per_clip], dtype=np.int64)
@@ -187,12 +220,13 @@ def _process_clips(
     kin: CharacterKinematics,
     joint_map: Path | None,
     progress: Progress,
+    max_joint_speed: float | None = None,
 ) -> tuple[list[CharacterMotion], list[dict[str, np.ndarray]]]:
     """:func:`process_clip` on every input, in order; clip names must be unique."""
     motions: list[CharacterMotion] = []
     per_clip: list[dict[str, np.ndarray]] = []
     for i, (name, path, licence, clip_fmt) in enumerate(inputs):
-        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map)
+        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map, max_joint_speed)
         if any(m.name == char.name for m in motions):
             raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
         motions.append(char)
@@ -279,6 +313,7 @@ def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
         "foot_sliding",
         "foot_sliding_source",
         "scale",
+        "max_joint_speed",
         "npz_layout",
         "penetration_before_lift_m",
         "lower_foot_hover_max",

@@ -87,3 +87,41 @@ def test_the_character_spec_chooses_the_method(clip_path, kinematics):
     assert retarget(src, with_spec(retarget="ik")).stats["method"] == "ik"
     with pytest.raises(AmorError, match=r"character 'humanoid36': unknown retargeting method 'fk'"):
         retarget(src, with_spec(retarget="fk"))
+
+
+def test_a_joint_speed_bound_holds_and_costs_key_point_error(clip_path, kinematics):
+    """``max_joint_speed`` (``preprocess --max-joint-speed``) keeps every retargeted joint within
+    the bound; on a fast clip the key points then follow the source less closely."""
+    kin = kinematics("biped20")
+    src = _source(clip_path, "spin")
+    free = retarget(src, kin)
+    bound = 4.0
+    slow = retarget(src, kin, max_joint_speed=bound)
+    speed = np.abs(np.diff(slow.joint_pos, axis=0)) * 50.0
+    assert np.abs(np.diff(free.joint_pos, axis=0)).max() * 50.0 > 2 * bound  # the clip needs it
+    assert speed.max() < bound * 1.01 and slow.stats["max_joint_speed"] == bound
+    assert slow.retarget_error > free.retarget_error
+
+
+def test_the_joint_speed_option_is_checked_before_any_work(tmp_path):
+    from dataclasses import replace
+
+    from amorctl.core.errors import AmorError
+    from amorctl.motion.preprocess import joint_speed_bound, preprocess
+    from amorctl.registry import get_registry
+
+    biped, human = (get_registry().character(n) for n in ("biped20", "humanoid36"))
+    assert joint_speed_bound(None, biped) is None and joint_speed_bound("2.5", biped) == 2.5
+    assert joint_speed_bound("motor", biped) == pytest.approx(46 * 2 * np.pi / 60)
+    for value, message in (("0", "positive"), ("nan", "positive"), ("fast", "neither"), ("-1", "positive")):
+        with pytest.raises(AmorError, match=message):
+            joint_speed_bound(value, biped)
+    with pytest.raises(AmorError, match="IK retargeting only"):
+        joint_speed_bound("motor", human)
+    no_curve = replace(biped, actuator=replace(biped.actuator, no_load_speed=None))
+    with pytest.raises(AmorError, match="no no-load speed"):
+        joint_speed_bound("motor", no_curve)
+    out = tmp_path / "d.mcap"
+    with pytest.raises(AmorError, match="--max-joint-speed"):
+        preprocess([], character="humanoid36", out=out, builtin="deepmimic", vae=None, max_joint_speed="3")
+    assert not out.exists()

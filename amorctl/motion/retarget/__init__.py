@@ -41,6 +41,18 @@ def retargeter_for(method: str, character: str = "?") -> Retargeter:
     raise AmorError(f"character {character!r}: unknown retargeting method {method!r} (known: direct, ik)")
 
 
-def retarget(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
-    """Retarget with the method the character's spec names (``kin.spec.retarget``)."""
-    return retargeter_for(kin.spec.retarget, kin.spec.name)(motion, kin)
+def retarget(
+    motion: SourceMotion, kin: CharacterKinematics, max_joint_speed: float | None = None
+) -> CharacterMotion:
+    """Retarget with the method the character's spec names (``kin.spec.retarget``);
+    ``max_joint_speed`` (rad/s, IK only; None = the method's default) bounds every joint's speed."""
+    if max_joint_speed is None:
+        return retargeter_for(kin.spec.retarget, kin.spec.name)(motion, kin)
+    if kin.spec.retarget != "ik":
+        raise AmorError(
+            f"character {kin.spec.name!r}: a joint-speed bound needs IK retargeting, "
+            f"not {kin.spec.retarget!r}"
+        )
+    from amorctl.motion.retarget.ik import retarget_ik
+
+    return retarget_ik(motion, kin, max_joint_speed=max_joint_speed)

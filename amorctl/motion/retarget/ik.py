@@ -15,8 +15,10 @@ Method, per clip (all at the control rate):
    plane, turned to the source foot's heading: a robot's feet are long relative to its legs, and
    a pitched foot would go through the floor), hands and head position,
    a weak posture task towards the character's standing pose, the joint limits, and a joint-speed
-   bound (``MAX_JOINT_SPEED``) that keeps the solver from flipping a joint through its range
-   between two frames when a target is out of reach.
+   bound (``MAX_JOINT_SPEED`` by default, a solver bound that keeps the solver from flipping a
+   joint through its range between two frames when a target is out of reach; ``max_joint_speed``
+   lowers it, e.g. to a servo's no-load speed so the reference stays within what the motors can
+   follow).
 4. Floor: the root is lifted wherever collision geometry dips below z = 0
    (:func:`amorctl.motion.retarget.common.lift_to_floor`).
 
@@ -160,8 +162,15 @@ def ik_targets(motion: SourceMotion, kin: CharacterKinematics, fps: float) -> Ik
     return IkTargets(scale, scaled, targets, quats, rest, contacts, foot_h)
 
 
-def solve_ik(kin: CharacterKinematics, goal: IkTargets, fps: float, num_frames: int) -> np.ndarray:
-    """Step 3: differential IK frame by frame, warm-started; returns qpos [T, nq]."""
+def solve_ik(
+    kin: CharacterKinematics,
+    goal: IkTargets,
+    fps: float,
+    num_frames: int,
+    max_joint_speed: float = MAX_JOINT_SPEED,
+) -> np.ndarray:
+    """Step 3: differential IK frame by frame, warm-started; returns qpos [T, nq]. Every actuated
+    joint turns at most ``max_joint_speed`` rad/s between frames (0 = unbounded)."""
     model = kin.model
     config = mink.Configuration(model)
     tasks: dict[str, mink.FrameTask] = {}
@@ -179,8 +188,8 @@ def solve_ik(kin: CharacterKinematics, goal: IkTargets, fps: float, num_frames: 
     posture.set_target(q0)
     config.update(q0)
     limits: list = [mink.ConfigurationLimit(model)]
-    if MAX_JOINT_SPEED > 0:
-        limits.append(mink.VelocityLimit(model, {n: MAX_JOINT_SPEED for n in kin.spec.joint_names()}))
+    if max_joint_speed > 0:
+        limits.append(mink.VelocityLimit(model, {n: max_joint_speed for n in kin.spec.joint_names()}))
     all_tasks = [*tasks.values(), posture]
 
     qpos = np.zeros((num_frames, model.nq))
@@ -202,15 +211,18 @@ def solve_ik(kin: CharacterKinematics, goal: IkTargets, fps: float, num_frames: 
     return qpos
 
 
-def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMotion:
-    """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK."""
+def retarget_ik(
+    motion: SourceMotion, kin: CharacterKinematics, max_joint_speed: float = MAX_JOINT_SPEED
+) -> CharacterMotion:
+    """Retarget a skeleton animation (uniform times) onto ``kin``'s character by key-point IK,
+    every joint within ``max_joint_speed`` rad/s (``amorctl preprocess --max-joint-speed``)."""
     fps = (
         1.0 / float(motion.times[1] - motion.times[0])
         if motion.times.size > 1
         else float(kin.spec.control_hz)
     )
     goal = ik_targets(motion, kin, fps)
-    qpos = solve_ik(kin, goal, fps, motion.times.shape[0])
+    qpos = solve_ik(kin, goal, fps, motion.times.shape[0], max_joint_speed)
     r = kin.root_qpos
     out = CharacterMotion.retargeted(
         motion,
@@ -218,7 +230,7 @@ def retarget_ik(motion: SourceMotion, kin: CharacterKinematics) -> CharacterMoti
         root_pos=qpos[:, r : r + 3].copy(),
         root_quat=qpos[:, r + 3 : r + 7].copy(),
         joint_pos=qpos[:, kin.joint_qpos].copy(),
-        stats={"method": "ik", "scale": goal.scale},
+        stats={"method": "ik", "scale": goal.scale, "max_joint_speed": max_joint_speed},
     )
     out = finish(out, motion, kin, lift=True, targets=goal.scaled)
     feet_pos, _ = kin.body_poses(
