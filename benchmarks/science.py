@@ -77,11 +77,6 @@ class Science:
         self.results.setdefault("skipped", {})
         self.doc: Path = args.doc
         self.img = self.doc.parent / "img"
-        # figures: science-<character>-*.png, or the report's own stem when it extends that name
-        # (docs/science-biped20-survival.md -> science-biped20-survival-*.png), so reports of
-        # other runs of one character do not overwrite each other's figures
-        base = f"science-{args.character}"
-        self.figure_stem = self.doc.stem if self.doc.stem.startswith(base) else base
         self.moppo = self.out / "moppo"
         self.ppo = self.out / "ppo-uniform"
         self.dataset = self.out / "walking.mcap"
@@ -96,6 +91,12 @@ class Science:
             library = load_dataset(run.dataset_path())
             self.run_clips = len(library.clips)
             self.motions = [c.name for c in walking_subset(library).clips]
+        # figures: science-<character>-*.png, or the report's own stem when it extends that name
+        # (docs/science-biped20-survival.md -> science-biped20-survival-*.png), so reports of
+        # other runs of one character do not overwrite each other's figures (the character is the
+        # measured run's with --run)
+        base = f"science-{args.character}"
+        self.figure_stem = self.doc.stem if self.doc.stem.startswith(base) else base
 
     # -- config and runs
     def base_config(self, **changes: Any) -> TrainConfig:

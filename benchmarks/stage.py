@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import shutil
 import sys
 import time
@@ -139,9 +140,32 @@ def by_family(per_clip: dict[str, dict[str, float]]) -> dict[str, dict[str, floa
     }
 
 
-def plot_stages(stages: list[dict[str, Any]], path: Path) -> bool:
-    """Survival and joint MAE per family against cumulative env steps; False without matplotlib
-    or evaluations."""
+def training_survival(metrics: Path, families: list[str], window: int = 25) -> dict[str, tuple[Any, Any]]:
+    """{family: (env steps [T], survival of the training episodes [T])} from a run's metrics.csv
+    (its ``survival/<family>`` columns, a moving mean over ``window`` rows); {} when absent."""
+    import csv
+
+    if not metrics.is_file():
+        return {}
+    with metrics.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([float(r["env_steps"]) for r in rows])
+    curves = {}
+    for family in families:
+        raw = np.array([float(r.get(f"survival/{family}") or "nan") for r in rows])
+        ok = np.isfinite(raw)
+        if ok.sum() >= window:
+            curves[family] = (
+                steps[ok][window - 1 :],
+                np.convolve(raw[ok], np.ones(window) / window, "valid"),
+            )
+    return curves
+
+
+def plot_stages(stages: list[dict[str, Any]], path: Path, metrics: Path | None = None) -> bool:
+    """Survival and joint MAE per family against cumulative env steps (with ``metrics``, the run's
+    metrics.csv, also the training episodes' survival as lines); False without matplotlib or
+    evaluations."""
     points = [(s["cumulative"]["env_steps"], s["evaluation"]) for s in stages if s.get("evaluation")]
     if not points:
         return False
@@ -152,7 +176,7 @@ def plot_stages(stages: list[dict[str, Any]], path: Path) -> bool:
         import matplotlib.pyplot as plt
     except ImportError:
         return False
-    fig, (ax_s, ax_m) = plt.subplots(1, 2, figsize=(12.5, 4))
+    fig, (ax_s, ax_m) = plt.subplots(1, 2, figsize=(12.5, 4), sharex=True)
     families = list(dict.fromkeys(f for _, ev in points for f in ev))
     colors = plt.get_cmap("tab20")  # one colour per family (the default cycle repeats after 10)
     for k, family in enumerate(families):
@@ -160,12 +184,17 @@ def plot_stages(stages: list[dict[str, Any]], path: Path) -> bool:
         xs = [x / 1e6 for x, ev in points if family in ev]
         ax_s.plot(xs, [ev[family]["survival"] for _, ev in points if family in ev], **style)
         ax_m.plot(xs, [ev[family]["joint_mae_deg"] for _, ev in points if family in ev], **style)
+    for family, (x, y) in (training_survival(metrics, families) if metrics else {}).items():
+        ax_s.plot(x / 1e6, y, color=colors(families.index(family) % 20), lw=0.8, alpha=0.6)
     ax_s.set(xlabel="cumulative env steps (M)", ylabel="survival over the episode", ylim=(-0.02, 1.02))
     ax_m.set(xlabel="cumulative env steps (M)", ylabel="joint MAE (deg)")
     for ax in (ax_s, ax_m):
         ax.grid(alpha=0.3)
     ax_m.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.suptitle("training stages: evaluation under uniform w at the end of each stage")
+    fig.suptitle(
+        "training stages: evaluation under uniform w at the end of each stage (markers)"
+        + ("; training episodes' survival, moving mean over 25 iterations (lines)" if metrics else "")
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -203,6 +232,7 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
     start_iteration, start_steps = int(before.get("iteration", 0)), int(before.get("env_steps", 0))
     iterations = start_iteration + args.max_iterations if args.max_iterations else OPEN_ENDED
     config = override(config, run__iterations=iterations)
+    trained_by, trained_on = git_commit(Path.cwd()), machine()  # the code and machine at the start
     began = time.perf_counter()
     limit = args.minutes * 60.0
     step_limit = start_steps + args.budget_steps if args.budget_steps else None
@@ -220,8 +250,9 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
     previous = stages[-1]["cumulative"] if stages else {"env_steps": 0, "iterations": 0, "wall_clock_s": 0.0}
     record = {
         "stage": len(stages) + 1,
-        "commit": git_commit(Path.cwd()),
-        "machine": machine(),
+        "command": args.command_line,
+        "commit": trained_by,
+        "machine": trained_on,
         "wall_clock_s": round(wall, 1),
         "env_steps": int(after["env_steps"]) - start_steps,
         "iterations": int(after["iteration"]) - start_iteration,
@@ -236,13 +267,13 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         "evaluation_protocol": f"uniform w, {args.eval_episodes} episodes per clip, seed {args.eval_seed}",
     }
     stages.append(record)
-    figures = [work / FIGURE] if plot_stages(stages, work / FIGURE) else []
+    figures = [work / FIGURE] if plot_stages(stages, work / FIGURE, work / "metrics.csv") else []
     total = record["cumulative"]
     export_pretrained(
         work,
         args.run,
         args.shelf,
-        command=f"python benchmarks/stage.py --run {args.run} --minutes {args.minutes:g}",
+        command=stages[0].get("command") or args.command_line,  # how the run was started
         description=args.description or f"{config.env.character or config.env.kind} trained in stages",
         notes=f"{len(stages)} stages, {total['env_steps']:,} env steps, {total['wall_clock_s'] / 60:.0f} min",
         figures=figures,
@@ -289,6 +320,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-episodes", type=int, default=8, help="episodes per clip at the stage's end")
     parser.add_argument("--eval-seed", type=int, default=1)
     args = parser.parse_args(argv)
+    args.command_line = shlex.join(
+        ["python", "benchmarks/stage.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     if args.budget_steps < 0 or args.max_iterations < 0:
         parser.error("--budget-steps and --max-iterations must be >= 0 (0: no such limit)")
     try:

@@ -185,6 +185,23 @@ def test_the_shipped_biped20_repertoire_matches_its_card(tmp_path, monkeypatch, 
             assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 2.0, metrics
 
 
+def test_the_shipped_humanoid36_walk_walks_as_its_card_says(tmp_path, monkeypatch, capsys) -> None:
+    """humanoid36's entry, re-measured short: 2 episodes of 10 s on ``walk`` and on a turn under
+    uniform weights survive, near the joint MAE its last stage recorded (8 episodes per clip)."""
+    monkeypatch.chdir(tmp_path)
+    card = pretrained.read_card(pretrained.package_folder() / "humanoid36-walk")
+    last = card["stages"][-1]["evaluation_clips"]
+    assert card["resumable"] and card["character"] == "humanoid36" and len(card["motions"]) == 6
+    assert "--character humanoid36" in card["stages"][0]["command"]
+    for clip in ("walk", "walker/turn_left0"):
+        code, out, err = run_cli(capsys, "evaluate", "pretrained:humanoid36-walk", "--motion", clip,
+                                 "--episodes", "2", "--json")  # fmt: skip
+        assert code == 0, err
+        metrics = json.loads(out)["settings"][0]["metrics"]
+        assert last[clip]["survival"] == 1.0 and metrics["survival_rate"] == 1.0, (clip, metrics)
+        assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 2.0, metrics
+
+
 def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None:
     from amorctl.cli.runs import _headline
 

@@ -174,7 +174,8 @@ def test_run_option_measures_a_trained_run_on_its_walking_clips_only(
 
     run = make_tracking_run(tmp_path, "science --run", clip_names=("walk", "backflip", "walker/turn_left0"))
     out = tmp_path / "out"
-    common = ["--run", str(run), "--out", str(out), "--doc", str(out / "science.md")]
+    doc = out / "science-biped20-tiny.md"  # --character is the measured run's, whatever it says
+    common = ["--run", str(run), "--out", str(out), "--doc", str(doc), "--character", "humanoid36"]
     with pytest.raises(SystemExit):
         science.main([*common, "--only", "train,sweeps"])
     assert "parts sweeps, front, bar, not train" in capsys.readouterr().err
@@ -187,6 +188,7 @@ def test_run_option_measures_a_trained_run_on_its_walking_clips_only(
     assert results["bar"]["episodes"] == 4  # 2 per walking clip
     assert 0.0 <= results["bar"]["uniform"]["survival_rate"] <= 1.0
     assert not (out / "moppo").exists()  # nothing trained
-    report = (out / "science.md").read_text()
+    assert results["sweeps"]["figure"] == "img/science-biped20-tiny-sweeps.png"  # not another run's
+    report = doc.read_text()
     assert f"measured run: `{run}`" in report and "**The run** (`--run`)" in report
     assert "MOPPO budget" not in report and "no training here" in report

@@ -110,13 +110,21 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     card = json.loads(card_path.read_text())
     assert [s["interrupted"] for s in card["stages"]] == [False] * 3  # budgets end a stage normally
 
+    head = {"commit": "abc1234"}  # what git says; a commit made while the stage trains moves it
+
     def stopped_by_ctrl_c(*args, **kwargs):
-        return dataclasses.replace(train_run(*args, **kwargs), interrupted=True, signal="SIGINT")
+        result = train_run(*args, **kwargs)
+        head["commit"] = "def5678"
+        return dataclasses.replace(result, interrupted=True, signal="SIGINT")
 
     monkeypatch.setattr(stage_script, "train_run", stopped_by_ctrl_c)
+    monkeypatch.setattr(stage_script, "git_commit", lambda _: head["commit"])
     run_stage(tmp_path)
     card = json.loads(card_path.read_text())
     assert [s["interrupted"] for s in card["stages"]] == [False] * 3 + [True]
+    assert card["stages"][-1]["commit"] == "abc1234"  # the code that trained, not HEAD at the end
+    assert card["stages"][0]["command"].startswith("python benchmarks/stage.py --run tiny --minutes 5 ")
+    assert "--config" in card["stages"][0]["command"] and card["command"] == card["stages"][0]["command"]
     card_path.write_text(json.dumps({**card, "resumable": False}))
     with pytest.raises(SystemExit):
         run_stage(tmp_path)
