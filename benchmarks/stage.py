@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from science_args import config_setting
-from science_runs import machine
+from science_runs import machine, metrics_rows
 
 from amorctl.analysis.tracking_metrics import evaluate_setting
 from amorctl.core.config import TrainConfig, load_config, load_preset, override, to_toml
@@ -140,15 +140,10 @@ def by_family(per_clip: dict[str, dict[str, float]]) -> dict[str, dict[str, floa
     }
 
 
-def training_survival(metrics: Path, families: list[str], window: int = 25) -> dict[str, tuple[Any, Any]]:
-    """{family: (env steps [T], survival of the training episodes [T])} from a run's metrics.csv
+def training_survival(run: Path, families: list[str], window: int = 25) -> dict[str, tuple[Any, Any]]:
+    """{family: (env steps [T], survival of the training episodes [T])} from the run's metrics.csv
     (its ``survival/<family>`` columns, a moving mean over ``window`` rows); {} when absent."""
-    import csv
-
-    if not metrics.is_file():
-        return {}
-    with metrics.open(newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = metrics_rows(run)
     steps = np.array([float(r["env_steps"]) for r in rows])
     curves = {}
     for family in families:
@@ -162,9 +157,9 @@ def training_survival(metrics: Path, families: list[str], window: int = 25) -> d
     return curves
 
 
-def plot_stages(stages: list[dict[str, Any]], path: Path, metrics: Path | None = None) -> bool:
-    """Survival and joint MAE per family against cumulative env steps (with ``metrics``, the run's
-    metrics.csv, also the training episodes' survival as lines); False without matplotlib or
+def plot_stages(stages: list[dict[str, Any]], path: Path, run: Path | None = None) -> bool:
+    """Survival and joint MAE per family against cumulative env steps (with ``run``, the run
+    directory, also its training episodes' survival as lines); False without matplotlib or
     evaluations."""
     points = [(s["cumulative"]["env_steps"], s["evaluation"]) for s in stages if s.get("evaluation")]
     if not points:
@@ -184,7 +179,7 @@ def plot_stages(stages: list[dict[str, Any]], path: Path, metrics: Path | None =
         xs = [x / 1e6 for x, ev in points if family in ev]
         ax_s.plot(xs, [ev[family]["survival"] for _, ev in points if family in ev], **style)
         ax_m.plot(xs, [ev[family]["joint_mae_deg"] for _, ev in points if family in ev], **style)
-    for family, (x, y) in (training_survival(metrics, families) if metrics else {}).items():
+    for family, (x, y) in (training_survival(run, families) if run else {}).items():
         ax_s.plot(x / 1e6, y, color=colors(families.index(family) % 20), lw=0.8, alpha=0.6)
     ax_s.set(xlabel="cumulative env steps (M)", ylabel="survival over the episode", ylim=(-0.02, 1.02))
     ax_m.set(xlabel="cumulative env steps (M)", ylabel="joint MAE (deg)")
@@ -193,7 +188,7 @@ def plot_stages(stages: list[dict[str, Any]], path: Path, metrics: Path | None =
     ax_m.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.suptitle(
         "training stages: evaluation under uniform w at the end of each stage (markers)"
-        + ("; training episodes' survival, moving mean over 25 iterations (lines)" if metrics else "")
+        + ("; training episodes' survival, moving mean over 25 iterations (lines)" if run else "")
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -267,7 +262,7 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         "evaluation_protocol": f"uniform w, {args.eval_episodes} episodes per clip, seed {args.eval_seed}",
     }
     stages.append(record)
-    figures = [work / FIGURE] if plot_stages(stages, work / FIGURE, work / "metrics.csv") else []
+    figures = [work / FIGURE] if plot_stages(stages, work / FIGURE, work) else []
     total = record["cumulative"]
     export_pretrained(
         work,
