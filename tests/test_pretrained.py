@@ -93,7 +93,9 @@ def test_runs_list_pretrained_and_local(shelf: Path, tracking_run: Path, capsys)
     assert tiny["motions"] and tiny["resumable"] is False and tiny["stages"] == []
     code, out, err = run_cli(capsys, "runs", "list", "--pretrained")
     assert code == 0, err
-    assert "motions" in out and "survival" in out and "pytest fixture" in out
+    tiny_block = out[out.index("pretrained:tiny") :]
+    assert f"{len(tiny['motions'])} clips (" in tiny_block and "M env steps" in tiny_block
+    assert "measured: –" in tiny_block and "pytest fixture" in tiny_block  # no stages, no summary
     code, out, err = run_cli(capsys, "runs", "list", str(tracking_run.parent), "--json")
     assert code == 0, err
     runs = json.loads(out)["runs"]
@@ -205,10 +207,10 @@ def test_the_shipped_humanoid36_walk_walks_as_its_card_says(tmp_path, monkeypatc
 def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None:
     from amorctl.cli.runs import _headline
 
-    clip = {"walk": 1.0, "walker/turn_left0": 0.9, "backflip": 0.0, "run": 0.5}
-    stage = {"evaluation_clips": {k: {"survival": v, "joint_mae_deg": 10.0} for k, v in clip.items()}}
+    clip = {"walk": (1.0, 8.0), "walker/turn_left0": (0.9, 10.0), "backflip": (0.0, 30.0), "run": (0.5, 12.0)}
+    stage = {"evaluation_clips": {k: {"survival": s, "joint_mae_deg": m} for k, (s, m) in clip.items()}}
     line = _headline({"stages": [{"evaluation_clips": {}}, stage]})
-    assert line == "2 of 4 clips ≥ 90% survival (walk, walker); mean survival 60% (uniform w)"
+    assert line == "2/4 clips ≥ 90% survival (walk, walker); mean survival 60%, joint MAE 15.0° (uniform w)"
     family = {
         "walk": {"survival": 1.0, "joint_mae_deg": 9.0},
         "run": {"survival": 0.0, "joint_mae_deg": 21.0},

@@ -89,10 +89,11 @@ def _headline(card: dict[str, Any]) -> str:
     if clips:
         tracked = [name for name, v in clips.items() if v["survival"] >= TRACKED_SURVIVAL]
         mean = sum(v["survival"] for v in clips.values()) / len(clips)
+        mae = sum(v["joint_mae_deg"] for v in clips.values()) / len(clips)
         which = f" ({_families(tracked)})" if tracked else ""
         return (
-            f"{len(tracked)} of {len(clips)} clips ≥ {TRACKED_SURVIVAL:.0%} survival{which}; "
-            f"mean survival {mean:.0%} (uniform w)"
+            f"{len(tracked)}/{len(clips)} clips ≥ {TRACKED_SURVIVAL:.0%} survival{which}; "
+            f"mean survival {mean:.0%}, joint MAE {mae:.1f}° (uniform w)"
         )
     if evaluation:
         survival = sum(v["survival"] for v in evaluation.values()) / len(evaluation)
@@ -100,6 +101,23 @@ def _headline(card: dict[str, Any]) -> str:
         return f"survival {survival:.0%}, joint MAE {mae:.1f}° (uniform w, per family)"
     value = (card.get("summary") or {}).get("episode/survival")
     return "–" if value is None else f"survival {value:.0%} (training)"
+
+
+def _pretrained_block(reference: str, card: dict[str, Any]) -> str:
+    """Three lines on a pretrained entry: what it was trained on and for how long, its headline
+    figures, and how it was made."""
+    motions = card.get("motions") or []
+    clips = f"{len(motions)} clips ({_families(motions)})" if motions else "clips not recorded"
+    stages = len(card.get("stages") or []) if card.get("resumable") else 0
+    in_stages = f" in {stages} stage{'s' if stages != 1 else ''}" if stages else ""
+    commit = (card.get("commit") or "an unrecorded commit")[:12]
+    return (
+        f"\n{reference}  {card.get('character')} · {clips} · "
+        f"{card.get('env_steps', 0) / 1e6:.1f} M env steps{in_stages}, {_minutes(card.get('wall_time_s'))}\n"
+        f"  measured: {_headline(card)}\n"
+        f"  {card.get('description') or '(no description)'}; trained by "
+        f"`{card.get('command') or 'not recorded'}` at {commit}"
+    )
 
 
 @app.command("list")
@@ -130,31 +148,9 @@ def list_runs(
                 highlight=False,
             )
             return
-        table = Table(title="Pretrained runs (use as RUN: pretrained:<name>)")
-        for col in ("name", "character", "motions", "env steps", "stages", "wall time", "measured"):
-            table.add_column(col, overflow="fold")
+        console.print("Pretrained runs (use as RUN: pretrained:<name>)", style="bold", highlight=False)
         for e in found:
-            c = e.card
-            motions = c.get("motions")
-            table.add_row(
-                e.name,
-                str(c.get("character")),
-                "–" if not motions else f"{len(motions)} ({_families(motions)})",
-                f"{c.get('env_steps', 0):,}",
-                str(len(c.get("stages") or [])) if c.get("resumable") else "–",
-                _minutes(c.get("wall_time_s")),
-                _headline(c),
-            )
-        console.print(table)
-        for e in found:
-            c = e.card
-            commit = (c.get("commit") or "an unrecorded commit")[:12]
-            console.print(
-                f"{e.reference}: {c.get('description') or '(no description)'}; trained by "
-                f"`{c.get('command') or 'not recorded'}` at {commit}",
-                highlight=False,
-                soft_wrap=True,
-            )
+            console.print(_pretrained_block(e.reference, e.card), highlight=False, soft_wrap=True)
         return
     rows = local_runs(folder)
     if json_out:
