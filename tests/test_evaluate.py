@@ -15,11 +15,12 @@ from amorctl.analysis.level_sweep import sweep_levels_weights, weight_sweep
 from amorctl.analysis.rollout import Episodes, Rollout, rollout
 from amorctl.analysis.schemas import EVALUATE_JSON_SCHEMA, PARETO_JSON_SCHEMA
 from amorctl.analysis.sweeps import parse_reference_point
-from amorctl.analysis.tracking_metrics import tracking_metrics
+from amorctl.analysis.tracking_metrics import joint_errors, tracking_metrics
 from amorctl.cli.main import main
 from amorctl.core.errors import AmorError
 from amorctl.core.weights import sample_dirichlet
 from amorctl.envs.toy import ToyTradeoffEnv
+from amorctl.registry import get_registry
 from amorctl.train.rundir import RunDir
 
 torch.set_num_threads(1)
@@ -110,8 +111,8 @@ def test_rollout_rejects_bad_input() -> None:
         rollout(_ConstantPolicy(0.0), env, [0.9, 0.9])
 
 
-def test_tracking_metrics_against_hand_computed_values() -> None:
-    # 2 steps, 2 envs, 3 joints, 1 end effector; env 1's second step is not counted (not valid).
+def hand_rollout() -> Rollout:
+    """2 steps, 2 envs, 3 joints, 1 end effector; env 1's second step is not counted (not valid)."""
     q = np.zeros((2, 2, 3), np.float32)
     q_ref = q.copy()
     q_ref[:, :, 0] = np.radians(3.0)  # joint 0 off by 3 degrees everywhere
@@ -129,6 +130,11 @@ def test_tracking_metrics_against_hand_computed_values() -> None:
         valid=np.array([[True, True], [True, False]]), episode_id=np.array([[0, 1], [0, -1]]),
         joint_pos=q, ref_joint_pos=q_ref, ee_pos=ee, ref_ee_pos=ee_ref,
     )  # fmt: skip
+    return ro
+
+
+def test_tracking_metrics_against_hand_computed_values() -> None:
+    ro = hand_rollout()
     m = tracking_metrics(ro, {"up": np.array([0]), "lo": np.array([1, 2])})
     # 3 counted steps x 3 joints: errors 3+3+3 (joint 0) and 6 (joint 2, step 0 env 0) -> 15 / 9.
     assert m["joint_mae_deg"] == pytest.approx(15 / 9, rel=1e-5)
@@ -138,6 +144,21 @@ def test_tracking_metrics_against_hand_computed_values() -> None:
     assert m["survival_rate"] == 0.5
     assert m["episode_length_s"] == pytest.approx(0.03)
     assert m["return/a"] == 1.5 and m["return_std/b"] == 0.5
+
+
+def test_joint_errors_against_hand_computed_values() -> None:
+    ro = hand_rollout()  # 3 counted steps; q - q_ref: joint 0 -3 deg each, joint 2 -6 deg once
+    errors = joint_errors(ro, ("hip", "knee", "ankle"))
+    assert list(errors) == ["hip", "knee", "ankle"]
+    assert errors["hip"] == pytest.approx({"mae_deg": 3.0, "bias_deg": -3.0, "p95_deg": 3.0}, rel=1e-5)
+    assert errors["knee"] == {"mae_deg": 0.0, "bias_deg": 0.0, "p95_deg": 0.0}
+    assert errors["ankle"]["mae_deg"] == pytest.approx(2.0, rel=1e-5)  # (6 + 0 + 0) / 3
+    assert errors["ankle"]["bias_deg"] == pytest.approx(-2.0, rel=1e-5)
+    assert errors["ankle"]["p95_deg"] == pytest.approx(np.percentile([6.0, 0.0, 0.0], 95), rel=1e-5)
+    mean_mae = np.mean([e["mae_deg"] for e in errors.values()])
+    assert mean_mae == pytest.approx(tracking_metrics(ro)["joint_mae_deg"], rel=1e-5)
+    with pytest.raises(AmorError, match="3 joint angles recorded for 2 joint names"):
+        joint_errors(ro, ("hip", "knee"))
 
 
 # ---------------------------------------------------------------------------- trained toy policy
@@ -275,6 +296,23 @@ def test_evaluate_tracking_metrics_per_motion_and_pareto_colours(
     for key in ("joint_mae_deg", "joint_mae_deg/up", "joint_mae_deg/lo", "joint_mae_deg/feet", "mpjpe_mm"):
         assert metrics[key] is not None and 0 <= metrics[key] < 90, key
     assert set(doc["settings"][0]["per_motion"]) == {"sway_a", "sway_b"}
+    assert doc["settings"][0]["per_joint"] == {}  # only with --per-joint
+    code, stdout, err = run_cli(
+        capsys, "evaluate", str(tracking_run), "--motion", "sway_a", "--motion", "sway_b",
+        "--episodes", "2", "--per-joint", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    doc = json.loads(stdout)
+    _validate(doc, EVALUATE_JSON_SCHEMA)
+    per_joint, joint_mae = doc["settings"][0]["per_joint"], doc["settings"][0]["metrics"]["joint_mae_deg"]
+    character = get_registry().character(RunDir(tracking_run).config.env.character)
+    assert list(per_joint) == list(character.joint_names())  # biped20's 20 joints, in action order
+    assert np.mean([e["mae_deg"] for e in per_joint.values()]) == pytest.approx(joint_mae, rel=1e-4)
+    assert all(abs(e["bias_deg"]) <= e["mae_deg"] + 1e-9 for e in per_joint.values())
+    code, stdout, err = run_cli(capsys, "evaluate", str(tracking_run), "--episodes", "1", "--per-joint")
+    assert code == 0, err
+    worst = max(per_joint, key=lambda j: per_joint[j]["mae_deg"])
+    assert "Error per joint (deg)" in stdout and worst in stdout
     code, stdout, err = run_cli(
         capsys, "pareto", str(tracking_run), "--motion", "sway_a", "--motion", "sway_b", "--samples", "3",
         "--out", str(tmp_path / "p"), "--json",
@@ -350,6 +388,7 @@ def test_bad_input_gives_clear_errors(toy_run: Path, tracking_run: Path, tmp_pat
         (("pareto", str(toy_run), "--ref-point", "1,2,3"), "needs 2 numbers"),
         (("evaluate", str(toy_run), "--sweep", "right", "--levels", "0,1"), "at least 3 levels"),
         (("evaluate", str(toy_run), "--video", str(tmp_path / "v.gif")), "must end in .mp4"),
+        (("evaluate", str(toy_run), "--per-joint"), "--per-joint needs a motion-tracking run"),
     ]
     for argv, message in cases:
         code, _, err = run_cli(capsys, *argv)

@@ -148,13 +148,27 @@ EVALUATE_JSON_SCHEMA: dict[str, Any] = {
             "type": "array",
             "items": {
                 "type": "object",
-                "required": ["label", "weights", "episodes", "metrics", "per_motion"],
+                "required": ["label", "weights", "episodes", "metrics", "per_motion", "per_joint"],
                 "properties": {
                     "label": {"type": "string", "description": "uniform | weights | schedule"},
                     "weights": {"type": "string"},
                     "episodes": {"type": "integer", "minimum": 1},
                     "metrics": _METRICS,
                     "per_motion": {"type": "object", "additionalProperties": _METRICS},
+                    "per_joint": {
+                        "type": "object",
+                        "description": "joint name -> its error in degrees ({} without --per-joint)",
+                        "additionalProperties": {
+                            "type": "object",
+                            "required": ["mae_deg", "bias_deg", "p95_deg"],
+                            "properties": {
+                                "mae_deg": {"type": "number", "minimum": 0},
+                                "bias_deg": {"type": "number"},
+                                "p95_deg": {"type": "number", "minimum": 0},
+                            },
+                            "additionalProperties": False,
+                        },
+                    },
                 },
             },
         },

@@ -39,6 +39,7 @@ class EvalResult:
             ``return_std/<objective>`` (unscaled cumulative rewards). Tracking metrics are None
             for envs without a reference motion.
         per_motion: the same metrics per motion when motions were named.
+        per_joint: with ``per_joint=True``, :func:`joint_errors` over every episode ({} otherwise).
     """
 
     label: str
@@ -46,6 +47,7 @@ class EvalResult:
     episodes: int
     metrics: dict[str, float | None]
     per_motion: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    per_joint: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def tracking_metrics(
@@ -97,6 +99,33 @@ def tracking_metrics(
     return out
 
 
+def joint_errors(ro: Rollout, joint_names: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Tracking error per actuated joint over every valid step of finished episodes, in degrees.
+
+    Per joint: ``mae_deg`` (mean ``|q - q_ref|``; their mean over joints is ``joint_mae_deg``),
+    ``bias_deg`` (mean ``q - q_ref``: a steady offset in the pose rather than lag or noise),
+    ``p95_deg`` (95th percentile of ``|q - q_ref|``). Empty without joint angles (non-tracking envs).
+
+    Args:
+        ro: a rollout with per-step arrays (``joint_pos``, ``ref_joint_pos`` [T, N, J]).
+        joint_names: [J] the character's actuated joints, in action order.
+    """
+    if ro.joint_pos is None or ro.ref_joint_pos is None:
+        return {}
+    step_mask = (ro.episode_id >= 0) & ro.valid  # [T, N]
+    diff = np.degrees(ro.joint_pos[step_mask].astype(np.float64) - ro.ref_joint_pos[step_mask])  # [S, J]
+    if diff.shape[1] != len(joint_names):
+        raise AmorError(f"{diff.shape[1]} joint angles recorded for {len(joint_names)} joint names")
+    if not diff.size:
+        return {}
+    err = np.abs(diff)
+    mae, bias, p95 = err.mean(axis=0), diff.mean(axis=0), np.percentile(err, 95, axis=0)
+    return {
+        name: {"mae_deg": float(mae[j]), "bias_deg": float(bias[j]), "p95_deg": float(p95[j])}
+        for j, name in enumerate(joint_names)
+    }
+
+
 def joint_groups(env: Any) -> dict[str, np.ndarray]:
     """{up, lo, feet: joint indices} of a tracking env's character ({} for other envs)."""
     view = tracking_view(env)
@@ -126,15 +155,17 @@ def evaluate_setting(
     episodes: int = 8,
     seed: int = 0,
     on_step: Progress | None = None,
+    per_joint: bool = False,
 ) -> EvalResult:
     """Evaluate one weight setting over ``episodes`` episodes per motion, in one batched rollout.
 
     Each of the N = E (or E per named motion) envs runs one episode from a reference-state
     initialization; the seed fixes the starts, so settings evaluated with one seed are compared
-    on the same starts.
+    on the same starts. ``per_joint`` adds :func:`joint_errors` over all the episodes.
 
     Raises:
-        AmorError: episodes < 1, an unknown motion, bad weights.
+        AmorError: episodes < 1, an unknown motion, bad weights, ``per_joint`` for an env
+            without a character.
     """
     if episodes < 1:
         raise AmorError(f"--episodes must be >= 1, got {episodes}")
@@ -143,8 +174,12 @@ def evaluate_setting(
     env, resolved = make_eval_env(config, g * episodes, motions=motions, env_motion=env_motion, seed=seed)
     try:
         names = tuple(env.reward_space.names)
+        view = tracking_view(env)
+        if per_joint and view is None:
+            raise AmorError(f"--per-joint needs a motion-tracking run; this run's env is {config.env.kind!r}")
         ro = rollout(policy, env, weights, episodes=1, seed=seed, on_step=on_step)
         groups = joint_groups(env)
+        joints = joint_errors(ro, view.character.joint_names()) if per_joint and view is not None else {}
     finally:
         close_env(env)
     metrics = tracking_metrics(ro, groups)
@@ -152,4 +187,4 @@ def evaluate_setting(
     if motions and env_motion is not None:
         for gi, name in enumerate(resolved):
             per_motion[name] = tracking_metrics(ro, groups, env_motion == gi)
-    return EvalResult(label, describe_weights(weights, names), episodes, metrics, per_motion)
+    return EvalResult(label, describe_weights(weights, names), episodes, metrics, per_motion, joints)

@@ -156,6 +156,10 @@ def evaluate(
         typer.Option("--video", help="Render an MP4: the character, the reference ghost, the weights."),
     ] = None,
     video_seconds: Annotated[float, typer.Option("--video-seconds", help="Length of the video.")] = 10.0,
+    per_joint: Annotated[
+        bool,
+        typer.Option("--per-joint", help="Also each joint's error: MAE, mean offset (bias), 95th pct."),
+    ] = False,
     out: Annotated[
         Path | None, typer.Option("--out", help="Directory for the sweep figure (default RUN/evaluate).")
     ] = None,
@@ -206,8 +210,9 @@ def evaluate(
     opened = RunDir.open(run)
     config = opened.config_for_data(data)  # the run's dataset, moved or held-out clips
     policy = opened.policy()
-    if video is not None and config.env.kind != "tracking":
-        raise AmorError(f"--video needs a motion-tracking run; this run's env is {config.env.kind!r}")
+    for flag, given in (("--video", video is not None), ("--per-joint", per_joint)):
+        if given and config.env.kind != "tracking":
+            raise AmorError(f"{flag} needs a motion-tracking run; this run's env is {config.env.kind!r}")
     names = tuple(policy.objectives)
     sched = load_schedule(schedule, names) if schedule is not None else None
     settings = _settings(names, weights, sched, compare)
@@ -223,7 +228,7 @@ def evaluate(
     if quiet:
         return
 
-    results = _evaluate_settings(policy, config, settings, motion, episodes, seed, show)
+    results = _evaluate_settings(policy, config, settings, motion, episodes, seed, show, per_joint)
     video_doc = None
     if video is not None:
         video_doc = _video(video, policy, config, settings[-1][1], motion, video_seconds, seed)
@@ -240,6 +245,7 @@ def evaluate(
                 "episodes": r.episodes,
                 "metrics": r.metrics,
                 "per_motion": r.per_motion,
+                "per_joint": r.per_joint,
             }
             for r in results
         ],
@@ -260,9 +266,10 @@ def _evaluate_settings(
     episodes: int,
     seed: int,
     show: bool,
+    per_joint: bool = False,
 ) -> list[EvalResult]:
     """One :class:`EvalResult` per ``(label, weight source)`` of ``settings``, in order, each with a
-    progress bar when ``show``."""
+    progress bar when ``show`` (and its per-joint errors with ``per_joint``)."""
     results: list[EvalResult] = []
     for label, source in settings:
         with rollout_progress(show, f"evaluate {label}") as on_step:
@@ -275,6 +282,7 @@ def _evaluate_settings(
                 episodes=episodes,
                 seed=seed,
                 on_step=on_step,
+                per_joint=per_joint,
             )
         results.append(result)
     return results
@@ -313,9 +321,25 @@ def _sweep(
     return {**ws.to_dict(), "figure": str(figure)}
 
 
+def _joint_table(results: list[EvalResult]) -> Table:
+    """Per-joint MAE and bias (degrees) of each setting, the first setting's worst joint first."""
+    table = Table(title="Error per joint (deg)")
+    table.add_column("joint")
+    for r in results:
+        table.add_column(f"MAE\n[dim]{r.label}[/dim]", justify="right")
+        table.add_column(f"bias\n[dim]{r.label}[/dim]", justify="right")
+    first = results[0].per_joint
+    for joint in sorted(first, key=lambda j: -first[j]["mae_deg"]):
+        cells = [(r.per_joint[joint]["mae_deg"], r.per_joint[joint]["bias_deg"]) for r in results]
+        table.add_row(joint, *(f"{v:+.2f}" if i % 2 else f"{v:.2f}" for c in cells for i, v in enumerate(c)))
+    return table
+
+
 def _print_report(doc: dict[str, Any], results: list[EvalResult], names: tuple[str, ...]) -> None:
-    """The metrics table, then the sweep's and the video's one-line summaries."""
+    """The metrics table (and the per-joint one), then the sweep's and the video's one-line summaries."""
     console.print(_table(results, names))
+    if results and results[0].per_joint:
+        console.print(_joint_table(results))
     sweep_doc, video_doc = doc["sweep"], doc["video"]
     if sweep_doc is not None:
         means = ", ".join(
