@@ -157,6 +157,22 @@ def training_survival(run: Path, families: list[str], window: int = 25) -> dict[
     return curves
 
 
+def stage_precision(run: Path, after_iteration: int) -> str:
+    """The network precision the backend chose in the iterations after ``after_iteration`` (its
+    ``bf16`` metric: ``precision = "auto"`` resolves per machine, so two stages of one config can
+    differ): ``bf16``, ``fp32``, ``bf16 in K of N iterations``, or ``unknown`` without metrics."""
+    flags = [
+        float(r["bf16"]) > 0
+        for r in metrics_rows(run)
+        if r.get("bf16") not in (None, "") and float(r["iteration"]) > after_iteration
+    ]
+    if not flags:
+        return "unknown"
+    if all(flags) or not any(flags):
+        return "bf16" if flags[0] else "fp32"
+    return f"bf16 in {sum(flags)} of {len(flags)} iterations"
+
+
 def plot_stages(stages: list[dict[str, Any]], path: Path, run: Path | None = None) -> bool:
     """Survival and joint MAE per family against cumulative env steps (with ``run``, the run
     directory, also its training episodes' survival as lines); False without matplotlib or
@@ -202,8 +218,10 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         raise AmorError(f"--run {args.run!r}: use lowercase letters, digits, '.', '_' or '-'")
     entry, work = Path(args.shelf) / args.run, Path(args.work) / args.run
     stages: list[dict[str, Any]] = []
+    description = args.description
     if entry.exists():
         card = pretrained.read_card(entry)
+        description = description or card.get("description", "")
         if not card.get("resumable"):
             raise AmorError(
                 f"{entry}: not a resumable entry (export it with `runs export-pretrained --resumable`)"
@@ -248,6 +266,7 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         "command": args.command_line,
         "commit": trained_by,
         "machine": trained_on,
+        "precision": stage_precision(work, start_iteration),
         "wall_clock_s": round(wall, 1),
         "env_steps": int(after["env_steps"]) - start_steps,
         "iterations": int(after["iteration"]) - start_iteration,
@@ -269,7 +288,8 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         args.run,
         args.shelf,
         command=stages[0].get("command") or args.command_line,  # how the run was started
-        description=args.description or f"{config.env.character or config.env.kind} trained in stages",
+        description=description or f"{config.env.character or config.env.kind} trained in stages",
+        commit=trained_by,  # the code that trained the checkpoint, not HEAD at the stage's end
         notes=f"{len(stages)} stages, {total['env_steps']:,} env steps, {total['wall_clock_s'] / 60:.0f} min",
         figures=figures,
         replace=True,

@@ -69,6 +69,7 @@ def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, c
     )
     for st in card["stages"]:
         assert st["commit"] is not None and "cores" in st["machine"]
+        assert st["precision"] == "fp32"  # the config's precision, as the backend resolved it
         assert st["evaluation"]  # one entry per motion family of the clips
         for ev in st["evaluation"].values():
             assert 0.0 <= ev["survival"] <= 1.0 and ev["joint_mae_deg"] > 0
@@ -95,7 +96,7 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     with pytest.raises(SystemExit):
         run_stage(tmp_path)  # no entry and nothing to start from
     assert "the first stage needs --preset or --config" in capsys.readouterr().err
-    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"))
+    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"), "--description", "a tiny run")
     with pytest.raises(SystemExit):
         run_stage(tmp_path, "--set", "ppo.entropy_coef=0.01")
     assert "continues with the run's own config" in capsys.readouterr().err
@@ -123,6 +124,10 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     card = json.loads(card_path.read_text())
     assert [s["interrupted"] for s in card["stages"]] == [False] * 3 + [True]
     assert card["stages"][-1]["commit"] == "abc1234"  # the code that trained, not HEAD at the end
+    assert card["commit"] == "abc1234"  # the entry's code version: its last stage's
+    assert card["description"] == "a tiny run"  # kept from the first stage
+    readme = (tmp_path / "shelf" / "tiny" / "README.md").read_text()
+    assert "| fp32 |" in readme and "(stopped by hand)" in readme and "code version: abc1234" in readme
     assert card["stages"][0]["command"].startswith("python benchmarks/stage.py --run tiny --minutes 5 ")
     assert "--config" in card["stages"][0]["command"] and card["command"] == card["stages"][0]["command"]
     card_path.write_text(json.dumps({**card, "resumable": False}))
@@ -172,3 +177,15 @@ def test_first_stage_trains_on_the_clips_named(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit):
         run_stage(tmp_path, "--clips", "walk")  # a later stage keeps the run's clips
     assert "continues with the run's own config" in capsys.readouterr().err
+
+
+def test_stage_precision_reads_what_the_backend_chose_in_the_stage(tmp_path: Path) -> None:
+    """``precision = "auto"`` resolves per machine: a stage records what its own iterations ran."""
+    rows = ["iteration,bf16", "1,0", "2,0", "3,1", "4,1", "5,1"]
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    assert stage_script.stage_precision(tmp_path, 2) == "bf16"
+    assert stage_script.stage_precision(tmp_path, 0) == "bf16 in 3 of 5 iterations"
+    assert stage_script.stage_precision(tmp_path, 1) == "bf16 in 3 of 4 iterations"
+    (tmp_path / "metrics.csv").write_text("\n".join(rows[:3]) + "\n")
+    assert stage_script.stage_precision(tmp_path, 0) == "fp32"
+    assert stage_script.stage_precision(tmp_path / "nowhere", 0) == "unknown"

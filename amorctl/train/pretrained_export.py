@@ -333,9 +333,9 @@ def stage_table(stages: Sequence[dict[str, Any]]) -> list[str]:
         "",
         "Training stages (resume with `python benchmarks/stage.py --run NAME --minutes M`):",
         "",
-        "| stage | commit | machine | wall clock (min) | env steps | iterations | cumulative env steps | "
-        "evaluation at its end (uniform w: survival, joint MAE per motion family) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| stage | commit | machine | precision | wall clock (min) | env steps | iterations | "
+        "cumulative env steps | evaluation at its end (uniform w: survival, joint MAE per motion family) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for st in stages:
         evaluation = "; ".join(
@@ -346,7 +346,8 @@ def stage_table(stages: Sequence[dict[str, Any]]) -> list[str]:
             st["stage"],
             str(st["commit"])[:10],
             st["machine"],
-            f"{st['wall_clock_s'] / 60:.1f}",
+            st.get("precision") or "not recorded",
+            f"{st['wall_clock_s'] / 60:.1f}" + (" (stopped by hand)" if st.get("interrupted") else ""),
             f"{st['env_steps']:,}",
             f"{st['iterations']:,}",
             f"{st['cumulative']['env_steps']:,}",
