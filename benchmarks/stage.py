@@ -46,7 +46,7 @@ from amorctl.plugins.backends.host import load_library
 from amorctl.train import pretrained
 from amorctl.train.episode_stats import clip_family
 from amorctl.train.loop import train_run
-from amorctl.train.pretrained_export import DATASET_FILE, export_pretrained, git_commit
+from amorctl.train.pretrained_export import DATASET_FILE, METRICS_EVERY, export_pretrained, git_commit
 from amorctl.train.rundir import CONFIG_FILE, RunDir
 
 #: ``run.iterations`` of a stage without ``--max-iterations``: the config's largest value (the
@@ -142,8 +142,10 @@ def by_family(per_clip: dict[str, dict[str, float]]) -> dict[str, dict[str, floa
 
 def training_survival(run: Path, families: list[str], window: int = 25) -> dict[str, tuple[Any, Any]]:
     """{family: (env steps [T], survival of the training episodes [T])} from the run's metrics.csv
-    (its ``survival/<family>`` columns, a moving mean over ``window`` rows); {} when absent."""
-    rows = metrics_rows(run)
+    (its ``survival/<family>`` columns at every ``METRICS_EVERY``-th iteration, the rows a shipped
+    entry keeps, so a working copy and its entry draw the same curve; a moving mean over ``window``
+    of those rows); {} when absent."""
+    rows = [r for r in metrics_rows(run) if int(float(r["iteration"])) % METRICS_EVERY == 0]
     steps = np.array([float(r["env_steps"]) for r in rows])
     curves = {}
     for family in families:
@@ -204,7 +206,7 @@ def plot_stages(stages: list[dict[str, Any]], path: Path, run: Path | None = Non
     ax_m.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.suptitle(
         "training stages: evaluation under uniform w at the end of each stage (markers)"
-        + ("; training episodes' survival, moving mean over 25 iterations (lines)" if run else "")
+        + (f"; training episodes' survival, mean over {25 * METRICS_EVERY} iterations (lines)" if run else "")
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -189,3 +189,20 @@ def test_stage_precision_reads_what_the_backend_chose_in_the_stage(tmp_path: Pat
     (tmp_path / "metrics.csv").write_text("\n".join(rows[:3]) + "\n")
     assert stage_script.stage_precision(tmp_path, 0) == "fp32"
     assert stage_script.stage_precision(tmp_path / "nowhere", 0) == "unknown"
+
+
+def test_training_survival_is_the_same_from_a_working_copy_and_its_thinned_entry(tmp_path: Path) -> None:
+    from amorctl.train.pretrained_export import thin_metrics
+
+    full, entry = tmp_path / "work", tmp_path / "entry"
+    full.mkdir(), entry.mkdir()
+    rows = ["iteration,env_steps,wall_time_s,survival/walk"]
+    rows += [f"{i},{i * 100},{i * 0.5},{(i % 7) / 7}" for i in range(1, 301)]
+    (full / "metrics.csv").write_text("\n".join(rows) + "\n")
+    thin_metrics(full / "metrics.csv", entry / "metrics.csv")
+    steps, survival = stage_script.training_survival(full, ["walk"], window=5)["walk"]
+    steps_e, survival_e = stage_script.training_survival(entry, ["walk"], window=5)["walk"]
+    np.testing.assert_array_equal(steps, steps_e)
+    np.testing.assert_array_equal(survival, survival_e)
+    assert len(steps) == 30 - 5 + 1 and steps[0] == 5000  # rows 10, 20, ..., 300; window of 5 rows
+    assert survival[0] == pytest.approx(np.mean([(i % 7) / 7 for i in (10, 20, 30, 40, 50)]))
