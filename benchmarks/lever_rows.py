@@ -6,7 +6,8 @@ its dataset (``--episodes`` per clip, seed ``--seed``, deterministic policy; sur
 episodes and joint MAE, as ``benchmarks/stage.py`` evaluates a stage), and its training curve is
 read from ``metrics.csv``. Prints two markdown tables (per run: env steps, wall clock, the
 training episode length at the end, clips with survival >= 90 %, mean survival and MAE; per clip:
-survival / MAE of each run) and writes a figure of the training curves against env steps (``--figure``).
+survival / MAE of each run) and writes a figure of the training curves against env steps
+(``--figure``; every 10th iteration of each run, the rows a shipped entry keeps).
 
     python benchmarks/lever_rows.py --run plain=runs/levers/plain/work/biped20-repertoire \\
         --run adaptive=runs/levers/adaptive/work/biped20-repertoire --figure docs/img/levers.png
@@ -25,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from science_runs import metrics_rows
 from stage import evaluate_clips
 
-from amorctl.train.pretrained_export import wall_time_s
+from amorctl.train.pretrained_export import METRICS_EVERY, wall_time_s
 from amorctl.train.rundir import RunDir
 
 CURVES = (("episode/length", "training episode length (steps)"), ("return/scalarized", "return · w"))
@@ -43,7 +44,10 @@ def row(label: str, run_dir: Path, episodes: int, seed: int) -> dict[str, Any]:
         "label": label,
         "env_steps": int(meta["env_steps"]),
         "wall_s": wall_time_s(run_dir / "metrics.csv"),
-        "episode_length": float(np.nanmean(metrics["episode/length"][-WINDOW:])),
+        # the last WINDOW iterations (a shipped entry's metrics.csv keeps every 10th row of them)
+        "episode_length": float(
+            np.nanmean(metrics["episode/length"][metrics["iteration"] > metrics["iteration"][-1] - WINDOW])
+        ),
         "clips": clips,
         "metrics": metrics,
     }
@@ -82,7 +86,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     for ax, (key, title) in zip(axes, CURVES, strict=True):
         for r in rows:
             m = r["metrics"]
-            ax.plot(m["env_steps"] / 1e6, m[key], label=r["label"], lw=1)
+            keep = m["iteration"] % METRICS_EVERY == 0  # the rows a shipped entry keeps: one sampling for all
+            ax.plot(m["env_steps"][keep] / 1e6, m[key][keep], label=r["label"], lw=1)
         ax.set(xlabel="env steps (M)", title=title)
         ax.grid(alpha=0.3)
     axes[0].legend()
