@@ -53,6 +53,7 @@ from amorctl.train.rundir import CONFIG_FILE, RunDir
 #: wall clock ends the stage long before; ``run.iterations`` only bounds the loop).
 OPEN_ENDED = 100_000_000
 FIGURE = "stages.png"
+SURVIVAL_WINDOW = 25  # rows of the stage figure's moving mean of training survival
 
 
 def first_config(args: argparse.Namespace) -> TrainConfig:
@@ -140,7 +141,9 @@ def by_family(per_clip: dict[str, dict[str, float]]) -> dict[str, dict[str, floa
     }
 
 
-def training_survival(run: Path, families: list[str], window: int = 25) -> dict[str, tuple[Any, Any]]:
+def training_survival(
+    run: Path, families: list[str], window: int = SURVIVAL_WINDOW
+) -> dict[str, tuple[Any, Any]]:
     """{family: (env steps [T], survival of the training episodes [T])} from the run's metrics.csv
     (its ``survival/<family>`` columns at every ``METRICS_EVERY``-th iteration, the rows a shipped
     entry keeps, so a working copy and its entry draw the same curve; a moving mean over ``window``
@@ -204,10 +207,9 @@ def plot_stages(stages: list[dict[str, Any]], path: Path, run: Path | None = Non
     for ax in (ax_s, ax_m):
         ax.grid(alpha=0.3)
     ax_m.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.suptitle(
-        "training stages: evaluation under uniform w at the end of each stage (markers)"
-        + (f"; training episodes' survival, mean over {25 * METRICS_EVERY} iterations (lines)" if run else "")
-    )
+    lines = f"; training episodes' survival, mean over {SURVIVAL_WINDOW * METRICS_EVERY} iterations (lines)"
+    title = "training stages: evaluation under uniform w at the end of each stage (markers)"
+    fig.suptitle(title + (lines if run else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -50,6 +50,11 @@ class EvalResult:
     per_joint: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
+def counted_steps(ro: Rollout) -> np.ndarray:
+    """[T, N] bool: the steps the metrics count (valid steps of episodes that finished)."""
+    return (ro.episode_id >= 0) & ro.valid
+
+
 def tracking_metrics(
     ro: Rollout, groups: dict[str, np.ndarray] | None = None, env_mask: np.ndarray | None = None
 ) -> dict[str, float | None]:
@@ -80,7 +85,7 @@ def tracking_metrics(
     for i, name in enumerate(names):
         out[f"return/{name}"] = float(eps.returns[sel, i].mean())
         out[f"return_std/{name}"] = float(eps.returns[sel, i].std())
-    step_mask = (ro.episode_id >= 0) & ro.valid & mask[None, :]  # [T, N]
+    step_mask = counted_steps(ro) & mask[None, :]  # [T, N]
     if ro.joint_pos is None or ro.ref_joint_pos is None or ro.ee_pos is None or ro.ref_ee_pos is None:
         out["joint_mae_deg"] = None
         out["mpjpe_mm"] = None
@@ -112,7 +117,7 @@ def joint_errors(ro: Rollout, joint_names: Sequence[str]) -> dict[str, dict[str,
     """
     if ro.joint_pos is None or ro.ref_joint_pos is None:
         return {}
-    step_mask = (ro.episode_id >= 0) & ro.valid  # [T, N]
+    step_mask = counted_steps(ro)
     diff = np.degrees(ro.joint_pos[step_mask].astype(np.float64) - ro.ref_joint_pos[step_mask])  # [S, J]
     if diff.shape[1] != len(joint_names):
         raise AmorError(f"{diff.shape[1]} joint angles recorded for {len(joint_names)} joint names")

@@ -330,8 +330,11 @@ def _joint_table(results: list[EvalResult]) -> Table:
         table.add_column(f"bias\n[dim]{r.label}[/dim]", justify="right")
     first = results[0].per_joint
     for joint in sorted(first, key=lambda j: -first[j]["mae_deg"]):
-        cells = [(r.per_joint[joint]["mae_deg"], r.per_joint[joint]["bias_deg"]) for r in results]
-        table.add_row(joint, *(f"{v:+.2f}" if i % 2 else f"{v:.2f}" for c in cells for i, v in enumerate(c)))
+        cells: list[str] = []
+        for r in results:
+            error = r.per_joint[joint]
+            cells += [f"{error['mae_deg']:.2f}", f"{error['bias_deg']:+.2f}"]
+        table.add_row(joint, *cells)
     return table
 
 
