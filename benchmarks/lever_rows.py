@@ -1,7 +1,9 @@
 """One lever a row: tracking runs trained with and without a lever, compared at equal env steps.
 
 Each ``--run LABEL=DIR`` is a run directory (a stage's working copy, ``runs/stages/NAME``, or any
-tracking run). For each, the newest checkpoint is evaluated under uniform ``w`` on every clip of
+tracking run); ``LABEL=DIR@ITERATION`` takes that run as it was at one of its checkpoints (its
+learning curve up to there), so one long run gives rows at several budgets. For each, the newest
+(or the named) checkpoint is evaluated under uniform ``w`` on every clip of
 its dataset (``--episodes`` per clip, seed ``--seed``, deterministic policy; survival over full
 episodes and joint MAE, as ``benchmarks/stage.py`` evaluates a stage), and its training curve is
 read from ``metrics.csv``. Prints two markdown tables (per run: env steps, wall clock, the
@@ -11,6 +13,7 @@ survival / MAE of each run) and writes a figure of the training curves against e
 
     python benchmarks/lever_rows.py --run plain=runs/levers/plain/work/biped20-repertoire \\
         --run adaptive=runs/levers/adaptive/work/biped20-repertoire --figure docs/img/levers.png
+    python benchmarks/lever_rows.py --run early=runs/stages/NAME@1800 --run late=runs/stages/NAME
 """
 
 from __future__ import annotations
@@ -23,27 +26,28 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from science_runs import metrics_rows
+from science_runs import metrics_rows, trained_wall_s
 from stage import evaluate_clips
 
-from amorctl.train.pretrained_export import METRICS_EVERY, wall_time_s
+from amorctl.train.pretrained_export import METRICS_EVERY
 from amorctl.train.rundir import RunDir
 
 CURVES = (("episode/length", "training episode length (steps)"), ("return/scalarized", "return · w"))
 WINDOW = 25  # iterations the end-of-training figures average over
 
 
-def row(label: str, run_dir: Path, episodes: int, seed: int) -> dict[str, Any]:
-    """The run's evaluation per clip and its training figures."""
+def row(label: str, run_dir: Path, episodes: int, seed: int, iteration: int | None = None) -> dict[str, Any]:
+    """The run's evaluation per clip and its training figures, at the checkpoint of ``iteration``
+    (None: the newest) and its learning curve up to there."""
     run = RunDir.open(run_dir)
-    meta = run.checkpoint().trainer.meta
-    rows = metrics_rows(run_dir)
+    ckpt = run.checkpoint(iteration)
+    rows = [r for r in metrics_rows(run_dir) if float(r["iteration"]) <= ckpt.iteration]
     metrics = {k: np.array([float(r[k]) if r.get(k) else np.nan for r in rows]) for k in rows[0]}
-    clips = evaluate_clips(run, episodes, seed)
+    clips = evaluate_clips(run, episodes, seed, ckpt.iteration)
     return {
         "label": label,
-        "env_steps": int(meta["env_steps"]),
-        "wall_s": wall_time_s(run_dir / "metrics.csv"),
+        "env_steps": int(ckpt.trainer.meta["env_steps"]),
+        "wall_s": trained_wall_s(rows),
         # the last WINDOW iterations (a shipped entry's metrics.csv keeps every 10th row of them)
         "episode_length": float(
             np.nanmean(metrics["episode/length"][metrics["iteration"] > metrics["iteration"][-1] - WINDOW])
@@ -100,19 +104,20 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--run", action="append", required=True, metavar="LABEL=DIR")
+    parser.add_argument("--run", action="append", required=True, metavar="LABEL=DIR[@ITERATION]")
     parser.add_argument("--episodes", type=int, default=8, help="evaluation episodes per clip")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--figure", default="", help="PNG of the training curves")
     args = parser.parse_args(argv)
     rows = []
     for spec in args.run:
-        label, _, folder = spec.partition("=")
-        if not folder:
-            parser.error(f"--run {spec!r}: write LABEL=DIR")
+        label, _, place = spec.partition("=")
+        folder, at, iteration = place.partition("@")
+        if not folder or (at and not iteration.isdigit()):
+            parser.error(f"--run {spec!r}: write LABEL=DIR or LABEL=DIR@ITERATION")
         if not (Path(folder) / "metrics.csv").is_file():
             parser.error(f"--run {spec!r}: {folder} is not a run directory (no metrics.csv)")
-        rows.append(row(label, Path(folder), args.episodes, args.seed))
+        rows.append(row(label, Path(folder), args.episodes, args.seed, int(iteration) if at else None))
     print(markdown(rows))
     if args.figure:
         plot(rows, Path(args.figure))

@@ -110,13 +110,16 @@ def work_copy(entry: Path, work: Path) -> TrainConfig:
     return config
 
 
-def evaluate_clips(run: RunDir, episodes: int, seed: int) -> dict[str, dict[str, float]]:
-    """Survival and joint MAE under uniform ``w``, per clip ({} for envs without clips)."""
+def evaluate_clips(
+    run: RunDir, episodes: int, seed: int, iteration: int | None = None
+) -> dict[str, dict[str, float]]:
+    """Survival and joint MAE under uniform ``w``, per clip ({} for envs without clips), of the
+    checkpoint of ``iteration`` (None: the newest)."""
     config = run.config
     if config.env.kind != "tracking":
         return {}
     clips = [c.name for c in load_library(config.env.character, run.dataset_path()).clips]
-    policy = run.policy()
+    policy = run.policy(iteration)
     uniform = np.full(len(policy.objectives), 1.0 / len(policy.objectives))
     result = evaluate_setting(
         policy, config, uniform, label="uniform", motions=clips, episodes=episodes, seed=seed

@@ -156,6 +156,21 @@ def test_lever_rows_tabulates_runs_and_clips() -> None:
     assert "| jump | 0% / 12.0° | 50% / 12.0° |" in text
 
 
+def test_lever_rows_takes_a_run_at_one_of_its_checkpoints(tmp_path: Path, capsys) -> None:
+    config = merge(tiny_config(tmp_path), {"run": {"keep_checkpoints": 0}}, "test")
+    train_run(config, tmp_path / "run")
+    steps_per_iteration = config.env.num_envs * config.ppo.num_steps
+    early = lever_rows.row("early", tmp_path / "run", episodes=1, seed=1, iteration=2)
+    late = lever_rows.row("late", tmp_path / "run", episodes=1, seed=1)
+    assert early["env_steps"] == 2 * steps_per_iteration and late["env_steps"] == 4 * steps_per_iteration
+    assert list(early["metrics"]["iteration"]) == [1, 2] and len(late["metrics"]["iteration"]) == 4
+    assert 0 < early["wall_s"] < late["wall_s"]
+    assert early["clips"].keys() == late["clips"].keys() and len(early["clips"]) == 2
+    with pytest.raises(SystemExit):
+        lever_rows.main(["--run", f"early={tmp_path / 'run'}@two"])
+    assert "write LABEL=DIR or LABEL=DIR@ITERATION" in capsys.readouterr().err
+
+
 def test_first_stage_trains_on_the_clips_named(tmp_path: Path, capsys) -> None:
     config = tiny_config(tmp_path)
     lib = load_dataset(tmp_path / "ds.mcap")
