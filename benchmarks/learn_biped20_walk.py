@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import itertools
 import math
 import time
 from pathlib import Path
@@ -42,6 +41,7 @@ from amorctl.motion.dataset import load_dataset, write_dataset
 from amorctl.plugins.backends.torch_cpu import TorchCpuBackend, bf16_supported
 from amorctl.registry import get_registry
 from amorctl.train.loop import train_run
+from amorctl.train.metrics import total_wall_time
 from amorctl.train.rundir import CHECKPOINT_DIR, RunDir
 
 WALKING = ("walk", "walker/")
@@ -207,9 +207,7 @@ def main() -> None:
     # --- learning curve
     rows = list(csv.DictReader((args.out / "metrics.csv").open()))
     steps = np.array([float(r["env_steps"]) for r in rows]) / 1e6
-    # training wall time summed over resumed segments (wall_time_s restarts at every resume)
-    wall = np.array([float(r["wall_time_s"]) for r in rows])
-    total_min = (wall[-1] + sum(a for a, b in itertools.pairwise(wall) if b < a)) / 60
+    total_min = total_wall_time([float(r["wall_time_s"]) for r in rows]) / 60
     png = args.out.parent / f"{args.out.name}-curve.png"
     try:
         import matplotlib

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
-import itertools
 import math
 import os
 import subprocess
@@ -16,6 +15,7 @@ from typing import Any
 from amorctl.core.config import TrainConfig, override
 from amorctl.sim.cpus import available_cpus, cpu_description
 from amorctl.train.loop import train_run
+from amorctl.train.metrics import total_wall_time
 from amorctl.train.rundir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,9 +27,8 @@ def metrics_rows(run: Path) -> list[dict[str, str]]:
 
 
 def trained_wall_s(rows: list[dict[str, str]]) -> float:
-    """Training wall time summed over resumed segments (``wall_time_s`` restarts at each resume)."""
-    wall = [float(r["wall_time_s"]) for r in rows]
-    return (wall[-1] + sum(a for a, b in itertools.pairwise(wall) if b < a)) if wall else 0.0
+    """Training wall time summed over resumed segments (0 for no rows)."""
+    return total_wall_time([float(r["wall_time_s"]) for r in rows]) if rows else 0.0
 
 
 def run_summary(run: Path, weights: str) -> dict[str, Any]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,15 @@ from amorctl.core.files import atomic_write_text
 
 METRICS_FILE = "metrics.csv"
 TB_DIR = "tb"
+
+
+def total_wall_time(times: list[float]) -> float:
+    """Training wall time in seconds from a run's ``wall_time_s`` column, oldest row first: the
+    column restarts at each resume, so the total is the sum of each segment's last value (NaN for
+    no rows)."""
+    if not times:
+        return math.nan
+    return times[-1] + sum(a for a, b in itertools.pairwise(times) if b < a)
 
 
 class MetricsLog:

@@ -32,6 +32,7 @@ from amorctl.core.files import atomic_write_text
 from amorctl.core.weights import sample_dirichlet
 from amorctl.train import pretrained
 from amorctl.train.checkpoint import save_checkpoint
+from amorctl.train.metrics import total_wall_time
 from amorctl.train.rundir import CHECKPOINT_DIR, CONFIG_FILE, RunDir
 
 DATASET_FILE = "dataset.mcap"
@@ -57,20 +58,12 @@ def strip_trainer_state(state: Snapshot) -> Snapshot:
 
 
 def wall_time_s(metrics_path: Path) -> float:
-    """Training wall time from ``metrics.csv``: ``wall_time_s`` restarts at each resume, so the
-    total is the sum of each segment's last value (NaN without the file or the column)."""
+    """Training wall time from ``metrics.csv`` (:func:`~amorctl.train.metrics.total_wall_time`;
+    NaN without the file or the column)."""
     if not metrics_path.is_file():
         return math.nan
     with metrics_path.open(newline="", encoding="utf-8") as f:
-        times = [float(r["wall_time_s"]) for r in csv.DictReader(f) if r.get("wall_time_s")]
-    if not times:
-        return math.nan
-    total, prev = 0.0, 0.0
-    for t in times:
-        if t < prev:  # a resume started a new segment
-            total += prev
-        prev = t
-    return total + prev
+        return total_wall_time([float(r["wall_time_s"]) for r in csv.DictReader(f) if r.get("wall_time_s")])
 
 
 def thin_metrics(src: Path, dst: Path, every: int = METRICS_EVERY) -> None:
