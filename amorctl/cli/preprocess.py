@@ -14,6 +14,7 @@ from amorctl.cli.output import console, err_console, print_json
 from amorctl.motion.preprocess import PreprocessReport
 from amorctl.motion.preprocess import Progress as Hooks
 from amorctl.motion.preprocess import preprocess as run_preprocess
+from amorctl.motion.tempo import parse_tempo
 from amorctl.motion.vae import VaeConfig
 
 _DEFAULT = VaeConfig()
@@ -55,6 +56,14 @@ def preprocess(
             "no-load speed (default: 30 rad/s, a solver bound).",
         ),
     ] = None,
+    tempo: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--tempo",
+            help="Play clips at this rate before retargeting (0.5 = half speed): FACTOR for every "
+            "clip, CLIP=FACTOR for one (repeatable).",
+        ),
+    ] = None,
     json_out: JsonFlag = False,
 ) -> None:
     """Import, retarget onto --character, compute frames and VAE latents; write --out atomically."""
@@ -81,6 +90,7 @@ def preprocess(
         licence=licence,
         vae=cfg,
         max_joint_speed=max_joint_speed,
+        tempo=parse_tempo(tempo or []),
     )
     if json_out:
         print_json(
@@ -127,17 +137,21 @@ def _print_report(report: PreprocessReport) -> None:
     """The human-readable report: a table of clips, contact reports of robot clips, the VAE, timings."""
     table = Table(title=f"{report.out} ({report.character}, {report.fps:g} Hz)")
     table.add_column("clip", no_wrap=True)
+    retimed = any("tempo" in c for c in report.clips)
     for col in ("frames", "seconds", "source fps", "retarget err (m)", "floor lift (m)"):
         table.add_column(col)
+    if retimed:
+        table.add_column("tempo")
     for c in report.clips:
-        table.add_row(
+        cells = [
             c["name"],
             str(c["frames"]),
             f"{c['duration_s']:.2f}",
             f"{c['source_fps']:.1f}",
             "-" if "npz_layout" in c else f"{c['retarget_error_m']:.4f}",  # robot clips: not retargeted
             f"{c.get('floor_lift_max', 0.0):.3f}",
-        )
+        ]
+        table.add_row(*cells, *([f"{c.get('tempo', 1.0):g}"] if retimed else []))
     console.print(table)
     for c in report.clips:
         if "npz_layout" in c:  # robot clips get a contact report instead of a retarget error

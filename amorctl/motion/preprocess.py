@@ -29,7 +29,8 @@ from amorctl.motion.kinematics import CharacterKinematics, character_kinematics
 from amorctl.motion.resample import resample_character, resample_source
 from amorctl.motion.retarget import retarget
 from amorctl.motion.retarget.robot import finish_robot_clip
-from amorctl.motion.source import CharacterMotion
+from amorctl.motion.source import CharacterMotion, SourceMotion
+from amorctl.motion.tempo import Tempo, retime
 from amorctl.motion.vae import VaeConfig, encode, encoder_to_bytes, train_vae
 from amorctl.registry import get_registry
 
@@ -82,17 +83,16 @@ def gather_inputs(
     return inputs
 
 
-def process_clip(
+def import_clip(
     path: Path,
     name: str | None,
     licence: str,
     kin: CharacterKinematics,
     fmt: str | None,
     joint_map: Path | None,
-    max_joint_speed: float | None = None,
-) -> tuple[CharacterMotion, dict[str, np.ndarray]]:
-    """Import, resample, retarget one file (IK joints within ``max_joint_speed`` rad/s when given);
-    returns the character motion and its frame arrays."""
+) -> SourceMotion | CharacterMotion:
+    """Import one file for ``kin``'s character (a skeleton motion, or a motion of the character
+    itself)."""
     spec = kin.spec
     opts = ImportOptions(
         name=name,
@@ -102,7 +102,21 @@ def process_clip(
         root_body=spec.root_body,
         licence=licence,
     )
-    motion = import_file(path, fmt, opts)
+    return import_file(path, fmt, opts)
+
+
+def process_motion(
+    motion: SourceMotion | CharacterMotion,
+    path: Path,
+    kin: CharacterKinematics,
+    max_joint_speed: float | None = None,
+    tempo: float = 1.0,
+) -> tuple[CharacterMotion, dict[str, np.ndarray]]:
+    """Play an imported motion at ``tempo`` (:func:`~amorctl.motion.tempo.retime`), resample,
+    retarget it (IK joints within ``max_joint_speed`` rad/s when given); returns the character
+    motion and its frame arrays."""
+    spec = kin.spec
+    motion = retime(motion, tempo)
     hz = float(spec.control_hz)
     duration = float(motion.times[-1] - motion.times[0])
     if duration * hz < 1.0:  # resampled, it would be one frame: nothing to track
@@ -117,12 +131,28 @@ def process_clip(
     else:
         char = retarget(resample_source(motion, hz), kin, max_joint_speed)
     char = replace(char, source=source_label(path))
+    if tempo != 1.0:
+        char = replace(char, stats={**char.stats, "tempo": tempo})
     arrays = clip_arrays(char, kin, hz)
     for key, a in arrays.items():
         if not np.isfinite(a).all():
             frame = int(np.argwhere(~np.isfinite(a))[0][0])
             raise AmorError(f"{path}: processing produced a non-finite {key} at frame {frame}")
     return char, arrays
+
+
+def process_clip(
+    path: Path,
+    name: str | None,
+    licence: str,
+    kin: CharacterKinematics,
+    fmt: str | None,
+    joint_map: Path | None,
+    max_joint_speed: float | None = None,
+) -> tuple[CharacterMotion, dict[str, np.ndarray]]:
+    """Import, resample, retarget one file (:func:`import_clip`, then :func:`process_motion`)."""
+    motion = import_clip(path, name, licence, kin, fmt, joint_map)
+    return process_motion(motion, path, kin, max_joint_speed)
 
 
 def joint_speed_bound(value: float | str | None, spec: CharacterSpec) -> float | None:
@@ -163,9 +193,11 @@ def preprocess(
     progress: Progress | None = None,
     licence: str | None = None,
     max_joint_speed: float | str | None = None,
+    tempo: Tempo | None = None,
 ) -> PreprocessReport:
     """Build a motion dataset at ``out``; AmorError (and no file) on any bad input, and before any
-    work when ``out``'s folder is not writable. ``max_joint_speed``: see :func:`joint_speed_bound`."""
+    work when ``out``'s folder is not writable. ``max_joint_speed``: see :func:`joint_speed_bound`;
+    ``tempo``: each clip's playback rate (:class:`~amorctl.motion.tempo.Tempo`)."""
     check_writable(Path(out).parent, "output folder", "make it writable or choose another --out")
     progress = progress or Progress()
     t0 = time.perf_counter()
@@ -173,7 +205,7 @@ def preprocess(
     bound = joint_speed_bound(max_joint_speed, spec)
     kin = character_kinematics(spec)
     inputs = gather_inputs(files, builtin, fmt, licence)
-    motions, per_clip = _process_clips(inputs, kin, joint_map, progress, bound)
+    motions, per_clip = _process_clips(inputs, kin, joint_map, progress, bound, tempo or Tempo())
     t1 = time.perf_counter()
 
     lengths = np.array([a["frames"].shape[0] for a in per_clip], dtype=np.int64)
@@ -221,14 +253,21 @@ def _process_clips(
     joint_map: Path | None,
     progress: Progress,
     max_joint_speed: float | None = None,
+    tempo: Tempo = Tempo(),  # noqa: B008 - frozen dataclass, safe as a default
 ) -> tuple[list[CharacterMotion], list[dict[str, np.ndarray]]]:
-    """:func:`process_clip` on every input, in order; clip names must be unique."""
+    """Import every input (clip names must be unique), resolve each clip's tempo against the
+    names, then :func:`process_motion` each, in order."""
+    imported: list[tuple[SourceMotion | CharacterMotion, Path]] = []
+    for name, path, licence, clip_fmt in inputs:
+        motion = import_clip(path, name, licence, kin, clip_fmt, joint_map)
+        if any(m.name == motion.name for m, _ in imported):
+            raise AmorError(f"{path}: a second clip named {motion.name!r} (rename the file)")
+        imported.append((motion, path))
+    rates = tempo.resolve([m.name for m, _ in imported])
     motions: list[CharacterMotion] = []
     per_clip: list[dict[str, np.ndarray]] = []
-    for i, (name, path, licence, clip_fmt) in enumerate(inputs):
-        char, arrays = process_clip(path, name, licence, kin, clip_fmt, joint_map, max_joint_speed)
-        if any(m.name == char.name for m in motions):
-            raise AmorError(f"{path}: a second clip named {char.name!r} (rename the file)")
+    for i, (motion, path) in enumerate(imported):
+        char, arrays = process_motion(motion, path, kin, max_joint_speed, rates[motion.name])
         motions.append(char)
         per_clip.append(arrays)
         if progress.clip:
@@ -314,6 +353,7 @@ def _short_stats(stats: dict[str, Any]) -> dict[str, Any]:
         "foot_sliding_source",
         "scale",
         "max_joint_speed",
+        "tempo",
         "npz_layout",
         "penetration_before_lift_m",
         "lower_foot_hover_max",
