@@ -48,13 +48,18 @@ def row(label: str, run_dir: Path, episodes: int, seed: int, iteration: int | No
         "label": label,
         "env_steps": int(ckpt.trainer.meta["env_steps"]),
         "wall_s": trained_wall_s(rows),
-        # the last WINDOW iterations (a shipped entry's metrics.csv keeps every 10th row of them)
-        "episode_length": float(
-            np.nanmean(metrics["episode/length"][metrics["iteration"] > metrics["iteration"][-1] - WINDOW])
-        ),
+        "episode_length": recent_mean(metrics["episode/length"], metrics["iteration"]),
         "clips": clips,
         "metrics": metrics,
     }
+
+
+def recent_mean(values: np.ndarray, iterations: np.ndarray) -> float:
+    """Mean of ``values`` [R] over the rows of the last WINDOW iterations (a shipped entry's
+    metrics.csv keeps every 10th row of them); NaN where none is finite (no episode ended yet)."""
+    recent = values[iterations > iterations[-1] - WINDOW]
+    recent = recent[np.isfinite(recent)]
+    return float(recent.mean()) if recent.size else float("nan")
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
