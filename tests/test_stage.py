@@ -13,6 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import eval_curve
 import lever_rows
 import stage as stage_script
 
@@ -169,6 +170,28 @@ def test_lever_rows_takes_a_run_at_one_of_its_checkpoints(tmp_path: Path, capsys
     with pytest.raises(SystemExit):
         lever_rows.main(["--run", f"early={tmp_path / 'run'}@two"])
     assert "write LABEL=DIR or LABEL=DIR@ITERATION" in capsys.readouterr().err
+
+
+def test_eval_curve_measures_checkpoints_once_and_tabulates_them(tmp_path: Path, capsys) -> None:
+    config = merge(tiny_config(tmp_path), {"run": {"keep_checkpoints": 0}}, "test")
+    train_run(config, tmp_path / "run")
+    cache = tmp_path / "curve.json"
+    args = ["--run", str(tmp_path / "run"), "--every", "2", "--episodes", "1", "--cache", str(cache)]
+    eval_curve.main(args)
+    first = capsys.readouterr().out
+    saved = json.loads(cache.read_text())
+    assert sorted(saved) == ["2", "4"]
+    assert saved["4"]["env_steps"] == 4 * 4 * 4  # 4 iterations x 4 envs x 4 steps
+    expected = eval_curve.summary(saved["2"]["clips"], "walk")
+    assert f"| 2 | 0.0 M | {expected['clips_90']:.0f} | {expected['mean_survival']:.0%} |" in first
+    # a cached entry is not measured again
+    saved["2"]["clips"] = {"walk": {"survival": 1.0, "joint_mae_deg": 5.0}}
+    cache.write_text(json.dumps(saved))
+    eval_curve.main(args)
+    assert "| 2 | 0.0 M | 1 | 100% | 5.00° |" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        eval_curve.main(["--run", str(tmp_path / "run"), "--iterations", "3", "5"])
+    assert "no checkpoint at iteration(s) [5]" in capsys.readouterr().err
 
 
 def test_first_stage_trains_on_the_clips_named(tmp_path: Path, capsys) -> None:
