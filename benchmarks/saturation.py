@@ -34,6 +34,8 @@ from amorctl.train.rundir import RunDir
 def base_env(env: Any) -> Any:
     """The tracking env under any wrappers (the one that owns the simulator, ``sim``)."""
     while not hasattr(env, "sim"):
+        if not hasattr(env, "env"):
+            raise SystemExit("saturation.py: the run's env has no MuJoCo simulator (torch-cpu runs only)")
         env = env.env
     return env
 
