@@ -217,3 +217,21 @@ def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None
     }
     assert _headline({"stages": [{"evaluation": family}]}).startswith("survival 50%, joint MAE 15.0°")
     assert _headline({"summary": {"episode/survival": 0.87}}) == "survival 87% (training)"
+
+
+def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatch, capsys) -> None:
+    """humanoid36's repertoire entry (a run in stages), re-measured short: 2 episodes of 10 s per
+    clip under uniform weights give the survival its last stage recorded on ``walk`` and ``crawl``,
+    near the joint MAE recorded there (8 episodes per clip)."""
+    monkeypatch.chdir(tmp_path)
+    card = pretrained.read_card(pretrained.package_folder() / "humanoid36-repertoire")
+    last = card["stages"][-1]["evaluation_clips"]
+    assert card["resumable"] and card["character"] == "humanoid36" and len(card["motions"]) == 20
+    assert "ppo.entropy_coef=0" in card["stages"][0]["command"]
+    for clip in ("walk", "crawl"):
+        code, out, err = run_cli(capsys, "evaluate", "pretrained:humanoid36-repertoire", "--motion", clip,
+                                 "--episodes", "2", "--json")  # fmt: skip
+        assert code == 0, err
+        metrics = json.loads(out)["settings"][0]["metrics"]
+        assert abs(metrics["survival_rate"] - last[clip]["survival"]) <= 0.5, (clip, metrics)
+        assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 3.0, (clip, metrics)
