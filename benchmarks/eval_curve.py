@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from stage import evaluate_clips
+from stage import evaluate_clips, write_figure
 
 from amorctl.train.rundir import RunDir
 
@@ -61,9 +61,7 @@ def plot(points: list[tuple[int, dict[str, float]]], family: str, path: Path) ->
         ax.plot(steps, [p[key] for _, p in points], marker="o", lw=1)
         ax.set(xlabel="env steps (M)", title=title)
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    write_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:

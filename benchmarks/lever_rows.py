@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from science_runs import metrics_rows, trained_wall_s
-from stage import evaluate_clips
+from stage import evaluate_clips, write_figure
 
 from amorctl.train.pretrained_export import METRICS_EVERY
 from amorctl.train.rundir import RunDir
@@ -100,9 +100,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.set(xlabel="env steps (M)", title=title)
         ax.grid(alpha=0.3)
     axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    write_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -213,10 +213,17 @@ def plot_stages(stages: list[dict[str, Any]], path: Path, run: Path | None = Non
     lines = f"; training episodes' survival, mean over {SURVIVAL_WINDOW * METRICS_EVERY} iterations (lines)"
     title = "training stages: evaluation under uniform w at the end of each stage (markers)"
     fig.suptitle(title + (lines if run else ""))
+    write_figure(fig, path)
+    return True
+
+
+def write_figure(fig: Any, path: Path | str) -> None:
+    """Lay out, save (110 dpi) and close one figure of the stage benchmarks."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return True
 
 
 def stage(args: argparse.Namespace) -> dict[str, Any]:
