@@ -22,11 +22,13 @@ The first stage creates the run from a preset (``--preset``, ``--character``, ``
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import shlex
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +39,7 @@ from science_args import config_setting
 from science_runs import machine, metrics_rows
 
 from amorctl.analysis.tracking_metrics import evaluate_setting
+from amorctl.cli.live_view import fmt, fmt_time
 from amorctl.core.config import TrainConfig, load_config, load_preset, override, to_toml
 from amorctl.core.errors import AmorError
 from amorctl.core.files import atomic_write_text
@@ -46,6 +49,7 @@ from amorctl.plugins.backends.host import load_library
 from amorctl.train import pretrained
 from amorctl.train.episode_stats import clip_family
 from amorctl.train.loop import train_run
+from amorctl.train.metrics import family_survival
 from amorctl.train.pretrained_export import DATASET_FILE, METRICS_EVERY, export_pretrained, git_commit
 from amorctl.train.rundir import CONFIG_FILE, RunDir
 
@@ -54,6 +58,7 @@ from amorctl.train.rundir import CONFIG_FILE, RunDir
 OPEN_ENDED = 100_000_000
 FIGURE = "stages.png"
 SURVIVAL_WINDOW = 25  # rows of the stage figure's moving mean of training survival
+PROGRESS_EVERY_S = 60.0  # seconds between two progress lines while a stage trains
 
 
 def first_config(args: argparse.Namespace) -> TrainConfig:
@@ -108,6 +113,37 @@ def work_copy(entry: Path, work: Path) -> TrainConfig:
         config = override(config, env__dataset=str((work / DATASET_FILE).resolve()))
         atomic_write_text(work / CONFIG_FILE, to_toml(config))
     return config
+
+
+def say(line: str) -> None:
+    """Print a line of the stage's log at once (a stage often runs in the background under nohup,
+    where stdout is block-buffered)."""
+    print(line, flush=True)
+
+
+def progress_printer(
+    minutes: float, every_s: float = PROGRESS_EVERY_S
+) -> Callable[[dict[str, float], int, float], None]:
+    """``train_run``'s ``on_iteration`` for a stage: a line after the first iteration and then at
+    most every ``every_s`` seconds, with the time spent of the budget, the iteration, the
+    cumulative env steps, the pace, and the training episodes' length and survival (in all and
+    per clip family)."""
+    last = -math.inf
+
+    def on_iteration(m: dict[str, float], _total: int, elapsed: float) -> None:
+        nonlocal last
+        if elapsed - last < every_s:
+            return
+        last = elapsed
+        families = family_survival(m)
+        say(
+            f"{fmt_time(elapsed)} of {fmt_time(minutes * 60.0)}  it {int(m['iteration']):,}  "
+            f"{int(m['env_steps']):,} env steps  {m['env_steps_per_s']:,.0f} steps/s "
+            f"({'bf16' if m.get('bf16') else 'fp32'})  length {fmt(m['episode/length'], '.1f')}  "
+            f"survival {fmt(m['episode/survival'], '.0%')}" + (f"  [{families}]" if families else "")
+        )
+
+    return on_iteration
 
 
 def evaluate_clips(
@@ -269,10 +305,23 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
             return True
         return time.perf_counter() - began > limit
 
-    result = train_run(config, work, resume=resume, stop_when=stop)
+    start = f"resuming at iteration {start_iteration:,} ({start_steps:,} env steps)" if resume else "new run"
+    say(
+        f"stage {len(stages) + 1} of {args.run}: {start}, {args.minutes:g} min of training in {work} "
+        f"(a line every {PROGRESS_EVERY_S:.0f} s; Ctrl-C ends the stage with a checkpoint)"
+    )
+    result = train_run(
+        config,
+        work,
+        resume=resume,
+        stop_when=stop,
+        on_iteration=progress_printer(args.minutes),
+        on_note=lambda note: say(f"note: {note}"),
+    )
     wall = time.perf_counter() - began
     run = RunDir.open(work)
     after = run.checkpoint().trainer.meta
+    say(f"evaluating iteration {int(after['iteration']):,}: uniform w, {args.eval_episodes} episode(s)/clip")
     per_clip = evaluate_clips(run, args.eval_episodes, args.eval_seed)
     previous = stages[-1]["cumulative"] if stages else {"env_steps": 0, "iterations": 0, "wall_clock_s": 0.0}
     record = {
@@ -362,13 +411,13 @@ def main(argv: list[str] | None = None) -> None:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(err.exit_code) from None
     total = record["cumulative"]
-    print(
+    say(
         f"stage {record['stage']}: {record['iterations']:,} iterations, {record['env_steps']:,} env steps in "
         f"{record['wall_clock_s'] / 60:.1f} min; in all {total['iterations']:,} iterations, "
         f"{total['env_steps']:,} env steps"
     )
     for family, ev in record["evaluation"].items():
-        print(f"  {family}: survival {ev['survival']:.0%}, joint MAE {ev['joint_mae_deg']:.1f}°")
+        say(f"  {family}: survival {ev['survival']:.0%}, joint MAE {ev['joint_mae_deg']:.1f}°")
 
 
 if __name__ == "__main__":

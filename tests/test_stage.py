@@ -58,6 +58,11 @@ def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, c
     run_stage(tmp_path)
     out = capsys.readouterr().out
     assert "stage 1: 2 iterations" in out and "stage 2: 2 iterations" in out
+    assert "stage 1 of tiny: new run, 5 min" in out
+    assert "stage 2 of tiny: resuming at iteration 2 (32 env steps), 5 min" in out
+    progress = [line for line in out.splitlines() if " of 0:05:00  it " in line]
+    assert [line.split("  it ")[1].split()[0] for line in progress] == ["1", "3"], out  # each stage's first
+    assert all("env steps" in line and "survival" in line for line in progress), progress
 
     entry = tmp_path / "shelf" / "tiny"
     card = json.loads((entry / "card.json").read_text())
