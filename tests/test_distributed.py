@@ -25,6 +25,7 @@ import torch
 from amorctl.core.config import TrainConfig, merge
 from amorctl.core.contracts import Snapshot
 from amorctl.core.errors import AmorError
+from amorctl.core.process_exit import end_process
 from amorctl.train import distributed
 from amorctl.train.checkpoint import list_checkpoints, load_checkpoint
 
@@ -756,3 +757,6 @@ if __name__ == "__main__":
         programs = {"update": main_update, "train": main_train, "pareto": main_pareto,
                     "pareto-tracking": main_pareto_tracking}  # fmt: skip
         programs[mode](where, world_)
+    # as amorctl's own commands do after joining a group: skip interpreter finalization, where
+    # gloo's native threads sometimes aborted a rank (SIGABRT) after its work was written
+    end_process(0)
