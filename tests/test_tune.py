@@ -477,6 +477,21 @@ def _policy_sees(page, name: str) -> float:  # type: ignore[no-untyped-def]
     return float(row.locator("td").nth(2).inner_text())
 
 
+def _resume(page) -> None:  # type: ignore[no-untyped-def]
+    """Press 'resume' on the paused live page and wait until it runs."""
+    page.get_by_role("button", name="resume").click()
+    page.wait_for_function("() => !document.body.innerText.includes('paused')", timeout=30_000)
+
+
+def _pause_at(page) -> str:  # type: ignore[no-untyped-def]
+    """Press 'pause' on the live page; returns the time it then shows ("t = 0.50 s" -> "0.50")."""
+    page.get_by_role("button", name="pause").click()
+    page.wait_for_function("() => document.body.innerText.includes('paused')", timeout=30_000)
+    found = re.search(r"t = ([0-9.]+) s", page.locator("body").inner_text())
+    assert found, "the live page shows no time"
+    return found.group(1)
+
+
 @pytest.mark.skipif(
     not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} not installed (CI installs Debian's chromium)"
 )
@@ -530,16 +545,26 @@ def test_live_page_in_headless_chromium(
                 time.sleep(1.0)
                 page.screenshot(path=shot)
 
-            # record a keyframe, move another slider, record again, save the schedule
+            # record a keyframe, move another slider, record again, save the schedule. Each keyframe
+            # is recorded paused, at a time shown on the page: the clip loops, and a keyframe at the
+            # time of an earlier one replaces it (LiveSession.record_keyframe)
+            t_first = _pause_at(page)
             page.get_by_role("button", name="record keyframe").click()
             page.wait_for_function("() => document.body.innerText.includes('keyframes: 1')", timeout=30_000)
+            _resume(page)
             sliders.nth(0).focus()
-            page.keyboard.press("Home")  # up to 0
+            page.keyboard.press("Home")  # up to 0: the policy sees it once it steps again
             page.wait_for_function(
                 "() => [...document.querySelectorAll('tr')].some(tr => tr.innerText.startsWith('up')"
                 " && tr.innerText.trim().endsWith('0.000'))",
                 timeout=30_000,
             )
+            for _ in range(20):
+                if _pause_at(page) != t_first:
+                    break
+                _resume(page)
+            else:
+                raise AssertionError(f"the page's time stayed at t = {t_first} s across 20 resumes")
             page.get_by_role("button", name="record keyframe").click()
             page.wait_for_function("() => document.body.innerText.includes('keyframes: 2')", timeout=30_000)
             page.get_by_role("button", name="save schedule").click()
