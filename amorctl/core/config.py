@@ -57,6 +57,7 @@ PRESETS: tuple[str, ...] = ("quick", "paper", "science", "science_sc")
 ENV_KINDS: tuple[str, ...] = ("tracking", "toy", "toy-smooth", "gym")
 LR_SCHEDULES: tuple[str, ...] = ("fixed", "adaptive")
 ACTION_MODES: tuple[str, ...] = ("residual", "absolute")
+CLIP_CONTINUATIONS: tuple[str, ...] = ("random", "same")
 PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
 RETURN_NORMS: tuple[str, ...] = ("off", "value", "value+advantage")
 #: The largest rollout batch (num_envs * num_steps) a config may ask for: 32x the paper's.
@@ -130,6 +131,12 @@ class EnvConfig:
         "farther than this from the reference, m (kind=tracking; 0 = falls only, the paper)",
         min=0,
         max=100,
+    )
+    clip_continuation: str = _doc(
+        "random",
+        "what a training episode tracks when its clip ends: random (a random clip from its first "
+        "frame, the default) or same (its own clip again, as evaluation loops one) (kind=tracking)",
+        choices=CLIP_CONTINUATIONS,
     )
 
 

@@ -20,10 +20,15 @@ LEVERS: tuple[str, ...] = (
     "adaptive_weights",
     "adaptive_starts",
     "termination_distance",
+    "clip_continuation",
 )
 #: ``[env]`` fields that shape training episodes only. Evaluation, sweeps and tuning set them to 0,
 #: so every run is judged by the same episodes (falls end them; nothing else does).
-TRAINING_ONLY_ENV: dict[str, float] = {"adaptive_starts": 0.0, "termination_distance": 0.0}
+TRAINING_ONLY_ENV: dict[str, float | str] = {
+    "adaptive_starts": 0.0,
+    "termination_distance": 0.0,
+    "clip_continuation": "random",
+}
 #: Env kinds whose objectives share a survival bonus the trainer can split off.
 SURVIVAL_BONUS_KINDS: tuple[str, ...] = ("tracking", "gym")
 #: Env kinds whose state (and so an adaptive weight sampler's) is checkpointed.
@@ -49,6 +54,10 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
         (
             config.env.termination_distance == 0 or kind == "tracking",
             f"[env] termination_distance needs the tracking env (env.kind = 'tracking'; got {kind!r})",
+        ),
+        (
+            config.env.clip_continuation == "random" or kind == "tracking",
+            f"[env] clip_continuation needs the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
         (
             p.survival_weight == 1.0 or p.survival_channel,
@@ -80,6 +89,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["adaptive_starts"] = f"[env] adaptive_starts = {config.env.adaptive_starts:g}"
     if config.env.termination_distance > 0:
         used["termination_distance"] = f"[env] termination_distance = {config.env.termination_distance:g}"
+    if config.env.clip_continuation != "random":
+        used["clip_continuation"] = f"[env] clip_continuation = {config.env.clip_continuation!r}"
     return used
 
 

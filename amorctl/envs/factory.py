@@ -47,6 +47,8 @@ def make_env(config: TrainConfig, backend: Any | None = None) -> VectorEnv:
             options.update(adaptive_starts=e.adaptive_starts, start_bin_seconds=e.start_bin_seconds)
         if e.termination_distance > 0:  # a lever as well
             options["termination_distance"] = e.termination_distance
+        if e.clip_continuation != "random":  # and another
+            options["clip_continuation"] = e.clip_continuation
         env = backend.make_env(
             character=e.character,
             dataset=e.dataset or None,

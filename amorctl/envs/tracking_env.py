@@ -20,6 +20,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from amorctl.core.config import CLIP_CONTINUATIONS
 from amorctl.core.contracts import Snapshot, survival_bonus_of
 from amorctl.core.env_random import BatchRandom, PerEnvRandom, Seed, env_random, restore_random
 from amorctl.core.errors import AmorError
@@ -69,6 +70,9 @@ class TrackingEnv:
             bin of ``start_bin_seconds`` (:mod:`amorctl.envs.start_sampling`); 0 = plain RSI.
         termination_distance: also terminate when the tracking error exceeds this many metres
             (:mod:`amorctl.core.termination`); 0 = off (the paper: falls only).
+        clip_continuation: what an episode tracks when its clip ends: ``"random"`` a random clip
+            (of ``clips``) from its first frame; ``"same"`` its own clip again from the first
+            frame, as an env of ``env_clips`` (and so evaluation) does.
     """
 
     def __init__(
@@ -91,6 +95,7 @@ class TrackingEnv:
         adaptive_starts: float = 0.0,
         start_bin_seconds: float = 1.0,
         termination_distance: float = 0.0,
+        clip_continuation: str = "random",
     ) -> None:
         registry = None
         if isinstance(character, str) or isinstance(objective_set, str):
@@ -105,6 +110,10 @@ class TrackingEnv:
             raise AmorError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         if not termination_distance >= 0:
             raise AmorError(f"termination_distance must be >= 0 metres, got {termination_distance}")
+        if clip_continuation not in CLIP_CONTINUATIONS:
+            raise AmorError(
+                f"clip_continuation must be one of {', '.join(CLIP_CONTINUATIONS)}, got {clip_continuation!r}"
+            )
         if any(int(o) < 0 for o in future_frames):
             raise AmorError(f"future_frames offsets must be >= 0, got {tuple(future_frames)}")
 
@@ -126,6 +135,7 @@ class TrackingEnv:
         self.future_frames = tuple(int(o) for o in future_frames)
         self.fall_drop = float(fall_height_fraction) * ch.standing_height
         self.termination_distance = float(termination_distance)
+        self.clip_continuation = clip_continuation
         self.sim = BatchSim(ch, n, nthread=nthread)
         self.dt = 1.0 / ch.control_hz
         jn, e = ch.num_joints, len(ch.end_effectors)
@@ -265,7 +275,8 @@ class TrackingEnv:
         self.ref_idx = nxt
         switched = nxt >= self.clip_end - 1  # reached its clip's last frame: continue on a new clip
         if switched.any():
-            self._start_clips(np.flatnonzero(switched), at_start=True)
+            same = self.clip_continuation == "same"
+            self._start_clips(np.flatnonzero(switched), at_start=True, same_clip=same)
 
         obs = self._observe(sim_frames)
         final_obs = obs.copy()
@@ -386,10 +397,13 @@ class TrackingEnv:
 
     # --- internals --------------------------------------------------------------------------------
 
-    def _start_clips(self, ids: np.ndarray, at_start: bool) -> None:
-        """Point envs ``ids`` at a random clip: its first frame, or a random frame but the last."""
+    def _start_clips(self, ids: np.ndarray, at_start: bool, same_clip: bool = False) -> None:
+        """Point envs ``ids`` at a random clip (``same_clip``: the one they track now): its first
+        frame, or a random frame but the last."""
         if self.env_clips is not None:
             clips = self.env_clips[ids]
+        elif same_clip:
+            clips = self.clip_id[ids]
         else:
             clips = self.valid_clips[self._rand.integers(ids, len(self.valid_clips))]
         start, end = self.clip_starts[clips], self.clip_ends[clips]
