@@ -138,6 +138,13 @@ class EnvConfig:
         "frame, the default) or same (its own clip again, as evaluation loops one) (kind=tracking)",
         choices=CLIP_CONTINUATIONS,
     )
+    survival_bonus_scale: float = _doc(
+        1.0,
+        "multiplies the objective set's survival bonus, added to every objective on each step "
+        "that does not end a training episode (kind=tracking; 1 = the paper's c_alive, 0 = none)",
+        min=0,
+        max=100,
+    )
 
 
 @dataclass(frozen=True)

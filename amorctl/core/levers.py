@@ -21,6 +21,7 @@ LEVERS: tuple[str, ...] = (
     "adaptive_starts",
     "termination_distance",
     "clip_continuation",
+    "survival_bonus_scale",
 )
 #: ``[env]`` fields that shape training episodes only. Evaluation, sweeps and tuning set them to 0,
 #: so every run is judged by the same episodes (falls end them; nothing else does).
@@ -28,6 +29,7 @@ TRAINING_ONLY_ENV: dict[str, float | str] = {
     "adaptive_starts": 0.0,
     "termination_distance": 0.0,
     "clip_continuation": "random",
+    "survival_bonus_scale": 1.0,
 }
 #: Env kinds whose objectives share a survival bonus the trainer can split off.
 SURVIVAL_BONUS_KINDS: tuple[str, ...] = ("tracking", "gym")
@@ -58,6 +60,15 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
         (
             config.env.clip_continuation == "random" or kind == "tracking",
             f"[env] clip_continuation needs the tracking env (env.kind = 'tracking'; got {kind!r})",
+        ),
+        (
+            config.env.survival_bonus_scale == 1.0 or kind == "tracking",
+            f"[env] survival_bonus_scale needs the tracking env (env.kind = 'tracking'; got {kind!r})",
+        ),
+        (
+            not p.survival_channel or config.env.survival_bonus_scale > 0,
+            "[ppo] survival_channel = true needs a survival bonus ([env] survival_bonus_scale = 0 "
+            "removes it)",
         ),
         (
             p.survival_weight == 1.0 or p.survival_channel,
@@ -91,6 +102,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["termination_distance"] = f"[env] termination_distance = {config.env.termination_distance:g}"
     if config.env.clip_continuation != "random":
         used["clip_continuation"] = f"[env] clip_continuation = {config.env.clip_continuation!r}"
+    if config.env.survival_bonus_scale != 1.0:
+        used["survival_bonus_scale"] = f"[env] survival_bonus_scale = {config.env.survival_bonus_scale:g}"
     return used
 
 

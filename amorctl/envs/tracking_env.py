@@ -32,6 +32,7 @@ from amorctl.core.vecenv import RewardSpace
 from amorctl.core.weight_sampling import WeightSampler
 from amorctl.core.weights import check_simplex_rows
 from amorctl.envs.start_sampling import StartSampler
+from amorctl.envs.survival_bonus import scale_survival_bonus
 from amorctl.envs.tracking_checks import check_clips, check_library, check_weights
 from amorctl.envs.tracking_view import TrackingEnvView
 from amorctl.motion.clips import MotionLibrary
@@ -73,6 +74,8 @@ class TrackingEnv:
         clip_continuation: what an episode tracks when its clip ends: ``"random"`` a random clip
             (of ``clips``) from its first frame; ``"same"`` its own clip again from the first
             frame, as an env of ``env_clips`` (and so evaluation) does.
+        survival_bonus_scale: multiplies the objective set's survival bonus
+            (:mod:`amorctl.envs.survival_bonus`); 1 = the set's own (the paper's c_alive).
     """
 
     def __init__(
@@ -96,6 +99,7 @@ class TrackingEnv:
         start_bin_seconds: float = 1.0,
         termination_distance: float = 0.0,
         clip_continuation: str = "random",
+        survival_bonus_scale: float = 1.0,
     ) -> None:
         registry = None
         if isinstance(character, str) or isinstance(objective_set, str):
@@ -118,7 +122,7 @@ class TrackingEnv:
             raise AmorError(f"future_frames offsets must be >= 0, got {tuple(future_frames)}")
 
         self.library = library
-        self.objectives = spec.make(ch)
+        self.objectives = scale_survival_bonus(spec.make(ch), survival_bonus_scale)
         self.m = m = len(spec.objectives)
         self.reward_space = RewardSpace(
             names=tuple(self.objectives.names),
