@@ -63,14 +63,15 @@ def test_config_asks_the_backend_and_evaluation_never_uses_it(tracking_run) -> N
     config = override(TrainConfig(), env__survival_bonus_scale=0.25)
     assert levers_in_use(config)["survival_bonus_scale"] == "[env] survival_bonus_scale = 0.25"
     check_backend_levers(config, get_registry().backend("torch-cpu").levers)
-    with pytest.raises(AmorError, match="survival_bonus_scale = 0.25 needs a backend"):
+    with pytest.raises(AmorError, match=r"survival_bonus_scale = 0\.25 needs a backend"):
         check_backend_levers(config, get_registry().backend("jax-mjx").levers)
     with pytest.raises(AmorError, match="survival_bonus_scale needs the tracking env"):
         merge(TrainConfig(), {"env": {"kind": "toy", "survival_bonus_scale": 0.5}}, "test")
     with pytest.raises(AmorError, match="survival_bonus_scale"):
         merge(TrainConfig(), {"env": {"survival_bonus_scale": -0.1}}, "test")
     with pytest.raises(AmorError, match="survival_channel = true needs a survival bonus"):
-        merge(TrainConfig(), {"env": {"survival_bonus_scale": 0.0}, "ppo": {"survival_channel": True}}, "test")
+        no_bonus_with_channel = {"env": {"survival_bonus_scale": 0.0}, "ppo": {"survival_channel": True}}
+        merge(TrainConfig(), no_bonus_with_channel, "test")
 
     run = RunDir.open(tracking_run)
     env, _ = make_eval_env(override(run.config, env__survival_bonus_scale=0.25), 4)
