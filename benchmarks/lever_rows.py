@@ -8,7 +8,8 @@ its dataset (``--episodes`` per clip, seed ``--seed``, deterministic policy; sur
 episodes and joint MAE, as ``benchmarks/stage.py`` evaluates a stage), and its training curve is
 read from ``metrics.csv``. Prints two markdown tables (per run: env steps, wall clock, the
 training episode length at the end, clips with survival >= 90 %, mean survival and MAE; per clip:
-survival / MAE of each run) and writes a figure of the training curves against env steps
+survival / MAE of each run, ``—`` where a run's dataset lacks the clip, e.g. a run trained on
+some clips with ``stage.py --clips``) and writes a figure of the training curves against env steps
 (``--figure``; every 10th iteration of each run, the rows a shipped entry keeps).
 
     python benchmarks/lever_rows.py --run plain=runs/levers/plain/work/biped20-repertoire \\
@@ -77,12 +78,15 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             f"{np.mean(surv):.0%} | {np.mean(mae):.1f}° |"
         )
     lines += ["", "| clip |" + "".join(f" {r['label']} |" for r in rows), "| --- |" + " --- |" * len(rows)]
-    for clip in rows[0]["clips"]:
-        cells = "".join(
-            f" {r['clips'][clip]['survival']:.0%} / {r['clips'][clip]['joint_mae_deg']:.1f}° |" for r in rows
-        )
+    for clip in dict.fromkeys(c for r in rows for c in r["clips"]):  # runs may train on different clips
+        cells = "".join(f" {cell(r['clips'].get(clip))} |" for r in rows)
         lines.append(f"| {clip} |{cells}")
     return "\n".join(lines)
+
+
+def cell(result: dict[str, float] | None) -> str:
+    """``survival / MAE`` of one clip, or ``—`` for a clip the run's dataset does not hold."""
+    return "—" if result is None else f"{result['survival']:.0%} / {result['joint_mae_deg']:.1f}°"
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:

@@ -162,6 +162,23 @@ def test_lever_rows_tabulates_runs_and_clips() -> None:
     assert "| jump | 0% / 12.0° | 50% / 12.0° |" in text
 
 
+def test_lever_rows_puts_runs_on_different_clips_in_one_table() -> None:
+    def fake(label: str, clips: dict[str, float]) -> dict:
+        return {
+            "label": label,
+            "env_steps": 4_147_200,
+            "wall_s": 960.0,
+            "episode_length": 400.0,
+            "clips": {c: {"survival": s, "joint_mae_deg": 13.0} for c, s in clips.items()},
+        }
+
+    rows = [fake("jump alone", {"jump": 0.875}), fake("dance_b alone", {"dance_b": 0.625})]
+    text = lever_rows.markdown(rows)
+    assert "| jump alone | 4.15 M | 16 min | 400 | 0 of 1 | 88% | 13.0° |" in text
+    assert "| jump | 88% / 13.0° | — |" in text
+    assert "| dance_b | — | 62% / 13.0° |" in text
+
+
 def test_lever_rows_takes_a_run_at_one_of_its_checkpoints(tmp_path: Path, capsys) -> None:
     config = merge(tiny_config(tmp_path), {"run": {"keep_checkpoints": 0}}, "test")
     train_run(config, tmp_path / "run")
