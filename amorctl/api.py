@@ -27,7 +27,8 @@ What is here, by plugin kind (see ``docs/plugins.md``):
   :class:`FrameParts`, :func:`split_frame`, :func:`frame_dim`;
 - backends: :class:`BackendSpec`, :class:`Backend`, :class:`Trainer`, :class:`Policy`,
   :class:`Snapshot`, :class:`SnapshotEnv`, :class:`TrackingView`, :func:`tracking_view`,
-  :class:`VectorEnv`, :class:`TrainConfig`;
+  :class:`VectorEnv`, :class:`TrainConfig`, and for distillation :class:`Teacher` with
+  :func:`teacher_of` (the teachers a training env carries);
 - motion formats: :class:`MotionFormatSpec`, :class:`ImportOptions`, :class:`SourceMotion`,
   :class:`CharacterMotion`, :class:`Skeleton`, :func:`deepmimic_skeleton` (the canonical source
   skeleton), :data:`CANONICAL_JOINTS`, :func:`check_finite`, :func:`check_times`,
@@ -48,6 +49,7 @@ from amorctl.core.contracts import (
     Policy,
     Snapshot,
     SnapshotEnv,
+    Teacher,
     TrackingView,
     Trainer,
     tracking_view,
@@ -72,7 +74,7 @@ from amorctl.core.specs import (
     PackageModel,
     package_model,
 )
-from amorctl.core.vecenv import VectorEnv
+from amorctl.core.vecenv import VectorEnv, teacher_of
 from amorctl.motion.formats.base import file_sha256
 from amorctl.motion.source import (
     CANONICAL_JOINTS,
@@ -114,6 +116,7 @@ __all__ = [
     "Snapshot",
     "SnapshotEnv",
     "SourceMotion",
+    "Teacher",
     "TrackingInputs",
     "TrackingView",
     "TrainConfig",
@@ -132,5 +135,6 @@ __all__ = [
     "package_model",
     "plugin_cache_dir",
     "split_frame",
+    "teacher_of",
     "tracking_view",
 ]

@@ -37,6 +37,23 @@ from amorctl.train.rundir import RunDir
 SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 
 
+#: the metric only a distillation student reports (docs/distill.md)
+DISTILL_MAE = "distill/action_mae"
+
+
+def _losses(m: dict[str, float]) -> str:
+    """The update's losses: MOPPO's, or a student's distillation loss and teacher action error."""
+    if DISTILL_MAE in m:
+        return (
+            f"loss {fmt(m['loss/total'])} (distill {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])})   "
+            f"teacher action MAE {fmt(m[DISTILL_MAE])} rad   KL {fmt(m['kl'])}"
+        )
+    return (
+        f"loss {fmt(m['loss/total'])} (policy {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])}, "
+        f"entropy {fmt(m['loss/entropy'])})   KL {fmt(m['kl'])}   clip {fmt(m['clip_fraction'], '.2f')}"
+    )
+
+
 class _Display(TrainingView):
     """The live view: progress, throughput, losses, episode statistics, per-objective table."""
 
@@ -53,6 +70,8 @@ class _Display(TrainingView):
         c = self.config
         where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
         mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else _weight_mode(c)
+        if c.distill.teachers:
+            mode += f" · student of {len(c.distill.teachers)} teacher run(s)"
         self.begin(
             names,
             start,
@@ -71,9 +90,7 @@ class _Display(TrainingView):
             f"iteration {it}/{total}   env steps {int(m['env_steps']):,}   "
             f"{m['env_steps_per_s']:,.0f} steps/s   "
             f"elapsed {fmt_time(elapsed)}   left {fmt_time(left)}\n"
-            f"loss {fmt(m['loss/total'])} (policy {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])}, "
-            f"entropy {fmt(m['loss/entropy'])})   KL {fmt(m['kl'])}   "
-            f"clip {fmt(m['clip_fraction'], '.2f')}   "
+            f"{_losses(m)}   "
             f"lr {fmt(m['learning_rate'])}   action std {fmt(m['action_std'])}   "
             f"{'bf16' if m.get('bf16') else 'fp32'}\n"
             f"episodes {int(m['episodes'])}   length {fmt(m['episode/length'], '.1f')} steps{seconds}   "
@@ -98,7 +115,8 @@ class _Display(TrainingView):
         return (
             f"{m['env_steps_per_s']:,.0f} steps/s ({'bf16' if m.get('bf16') else 'fp32'})  "
             f"loss {fmt(m['loss/total'])}  value {fmt(m['loss/value'])}  kl {fmt(m['kl'])}  "
-            f"ep len {fmt(m['episode/length'], '.1f')}  "
+            + (f"teacher action MAE {fmt(m[DISTILL_MAE])}  " if DISTILL_MAE in m else "")
+            + f"ep len {fmt(m['episode/length'], '.1f')}  "
             f"survival {fmt(m['episode/survival'], '.2f')}  returns {self.per_objective(m, 'return')}"
             + (f"  survival by family: {families}" if (families := family_survival(m)) else "")
         )

@@ -3,7 +3,8 @@
 A config is built in layers, each overriding the one before: the dataclass defaults (which equal
 the ``quick`` preset), a preset file (``amorctl/presets/<name>.toml``), the user's ``--config``
 file, then command-line options. Every layer is partial TOML with the sections ``[run]``,
-``[env]``, ``[network]``, ``[ppo]`` and ``[weights]``; a key that is not in the schema is rejected by name.
+``[env]``, ``[network]``, ``[ppo]``, ``[weights]`` and ``[distill]``; a key that is not in the
+schema is rejected by name.
 Every number has bounds in its field's metadata (``min``/``max``, ``gt`` for an exclusive lower
 bound); a value outside them is refused naming the file (or command-line flag) and the key:
 ``runs/x/config.toml: [ppo] num_steps = 100000000 is out of range (1..100000)``.
@@ -43,13 +44,23 @@ def _doc(
     gt: float | None = None,
     choices: tuple[str, ...] | None = None,
     max_len: int | None = None,
+    min_len: int | None = None,
 ) -> Any:
     """A dataclass field with a one-line doc and its bounds, kept in the field's metadata.
 
     ``min``/``max``: inclusive bounds of a number (of each entry of a tuple); ``gt``: exclusive
-    lower bound; ``choices``: the allowed strings; ``max_len``: the most entries of a tuple.
+    lower bound; ``choices``: the allowed strings; ``max_len`` / ``min_len``: the most / fewest
+    entries of a tuple (fewest: 1 unless told).
     """
-    meta = {"doc": text, "min": min, "max": max, "gt": gt, "choices": choices, "max_len": max_len}
+    meta = {
+        "doc": text,
+        "min": min,
+        "max": max,
+        "gt": gt,
+        "choices": choices,
+        "max_len": max_len,
+        "min_len": min_len,
+    }
     return field(default=default, metadata={k: v for k, v in meta.items() if v is not None})
 
 
@@ -245,6 +256,27 @@ class WeightsConfig:
 
 
 @dataclass(frozen=True)
+class DistillConfig:
+    """Teacher-student training (docs/distill.md): the student imitates per-clip teacher policies
+    on the states it visits itself, instead of learning from rewards."""
+
+    teachers: tuple[str, ...] = _doc(
+        (),
+        "runs (directories or pretrained:NAME) whose policies teach the clips of their datasets; "
+        "a clip is taught by the first teacher that holds it (empty = MOPPO from rewards)",
+        max_len=64,
+        min_len=0,
+    )
+    learning_rate: float = _doc(
+        5e-4,
+        "the student's Adam learning rate, fixed (MOPPO's [ppo] learning_rate and lr_schedule "
+        "do not apply: its KL rule would stop a student that follows its teachers quickly)",
+        gt=0,
+        max=1,
+    )
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The whole training configuration; sections map to TOML tables."""
 
@@ -253,6 +285,7 @@ class TrainConfig:
     network: NetworkConfig = field(default_factory=NetworkConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     weights: WeightsConfig = field(default_factory=WeightsConfig)
+    distill: DistillConfig = field(default_factory=DistillConfig)
 
 
 SECTIONS: dict[str, type] = {
@@ -261,6 +294,7 @@ SECTIONS: dict[str, type] = {
     "network": NetworkConfig,
     "ppo": PPOConfig,
     "weights": WeightsConfig,
+    "distill": DistillConfig,
 }
 
 
@@ -288,9 +322,9 @@ def _coerce(value: Any, hint: Any, where: str, meta: Mapping[str, Any]) -> Any:
         (item,) = get_args(hint)[:1]
         if not isinstance(value, list | tuple):
             raise AmorError(f"{where}: expected a list of {item.__name__}, got {value!r}")
-        longest = meta.get("max_len")
-        if not value or (longest is not None and len(value) > longest):
-            raise AmorError(f"{where}: expected 1 to {longest} entries, got {len(value)}")
+        longest, fewest = meta.get("max_len"), meta.get("min_len", 1)
+        if len(value) < fewest or (longest is not None and len(value) > longest):
+            raise AmorError(f"{where}: expected {fewest} to {longest} entries, got {len(value)}")
         items = tuple(_coerce(v, item, where, {}) for v in value)
         bad = [v for v in items if not _in_range(v, meta)]
         if bad:
@@ -338,7 +372,7 @@ def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") ->
             or out of its bounds.
     """
     if not isinstance(data, Mapping):
-        raise AmorError(f"{source}: expected tables [run], [env], [network], [ppo], [weights]")
+        raise AmorError(f"{source}: expected tables {', '.join(f'[{s}]' for s in SECTIONS)}")
     sections: dict[str, Any] = {}
     for section, values in data.items():
         if section not in SECTIONS:

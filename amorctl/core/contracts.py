@@ -10,6 +10,8 @@ implementing them. Plugin authors import them from :mod:`amorctl.api`.
   (numpy arrays + JSON, stored as safetensors + JSON, never pickles).
 - :class:`Policy` — a trained, frozen policy: deterministic actions for observations that carry
   ``w`` in their last m entries, critic values, the objective names, the observation layout.
+- :class:`Teacher` — frozen policies that teach a student each clip (``[distill] teachers``): the
+  training loop builds it and hands it to the trainer through the env (:func:`vecenv.teacher_of`).
 - :class:`SnapshotEnv` — an env that saves and restores its full state (bit-exact resume).
 - :class:`ObjectiveSet` — what ``ObjectiveSetSpec.make(character)`` returns: r ``[N, m]``.
 - :class:`TrackingView` — the read-only, backend-neutral view of a motion-tracking env that
@@ -127,6 +129,21 @@ class Policy(Protocol):
     def export_arrays(self) -> Snapshot:
         """The inference parameters as arrays + metadata (actor, critic, normalizer), backend-neutral
         names documented by the backend: what ``deploy export`` bakes into ONNX."""
+        ...
+
+
+@runtime_checkable
+class Teacher(Protocol):
+    """Per-clip teacher policies for distillation: the Gaussian action of the teacher of each
+    sample's clip (docs/distill.md)."""
+
+    def __call__(self, obs: np.ndarray, clips: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raw observations [B, D] and the clip index of each [B] (into the env's clips) ->
+        (action mean [B, A], action log std [B, A]), float32."""
+        ...
+
+    def fingerprint(self) -> list[str]:
+        """One string per teacher naming its run and checkpoint: a resumed student checks it."""
         ...
 
 

@@ -22,6 +22,7 @@ LEVERS: tuple[str, ...] = (
     "termination_distance",
     "clip_continuation",
     "survival_bonus_scale",
+    "distill",
 )
 #: ``[env]`` fields that shape training episodes only. Evaluation, sweeps and tuning set them to 0,
 #: so every run is judged by the same episodes (falls end them; nothing else does).
@@ -60,6 +61,10 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
         (
             config.env.clip_continuation == "random" or kind == "tracking",
             f"[env] clip_continuation needs the tracking env (env.kind = 'tracking'; got {kind!r})",
+        ),
+        (
+            not config.distill.teachers or kind == "tracking",
+            f"[distill] teachers need the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
         (
             config.env.survival_bonus_scale == 1.0 or kind == "tracking",
@@ -104,6 +109,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["clip_continuation"] = f"[env] clip_continuation = {config.env.clip_continuation!r}"
     if config.env.survival_bonus_scale != 1.0:
         used["survival_bonus_scale"] = f"[env] survival_bonus_scale = {config.env.survival_bonus_scale:g}"
+    if config.distill.teachers:
+        used["distill"] = f"[distill] teachers = {list(config.distill.teachers)!r}"
     return used
 
 

@@ -116,3 +116,9 @@ def diverged_total(env: object) -> int:
 def weight_sampler_of(env: object) -> Any:
     """The env's weight sampler (optional in :class:`VectorEnv`), or None."""
     return getattr(env, "weight_sampler", None)
+
+
+def teacher_of(env: object) -> Any:
+    """The :class:`~amorctl.core.contracts.Teacher` a distillation run's env carries (the training
+    loop attaches it for ``[distill] teachers``), or None."""
+    return getattr(env, "teacher", None)

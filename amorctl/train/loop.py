@@ -48,6 +48,7 @@ from amorctl.train.checkpoint import (
     prune_checkpoints,
     save_checkpoint,
 )
+from amorctl.train.distill import Taught, load_teachers, record_teachers, student_library
 from amorctl.train.episode_stats import EpisodeRecorder
 from amorctl.train.metrics import METRICS_FILE, TB_DIR, MetricsLog
 from amorctl.train.rundir import (
@@ -223,7 +224,7 @@ def train_run(
     check_backend_levers(config, get_registry().backend(config.run.backend).levers)
     callbacks = Callbacks(on_start, on_iteration, on_note, stop_after, stop_when)
     if not resume:  # stored absolute with its SHA-256: the run works from anywhere (rundir.py)
-        config = record_dataset(config)
+        config = record_teachers(record_dataset(config))
     if run.read_only:
         raise AmorError(
             f"{run.label}: pretrained runs are read-only and carry no optimizer state, so they "
@@ -315,7 +316,11 @@ class Runner:
         # backend whose env rolls out in one fused call is not wrapped (it would lose that path)
         fused = has_fused_rollout(self.env)
         self.recorder = None if fused else EpisodeRecorder(self.env)
-        self.trainer: Trainer = backend.make_trainer(self.env if fused else self.recorder, self.local)
+        trained_env: Any = self.env if fused else self.recorder
+        if config.distill.teachers:  # checked before anything is written
+            teacher = load_teachers(config, self.env, student_library(config))
+            trained_env = Taught(trained_env, teacher)
+        self.trainer: Trainer = backend.make_trainer(trained_env, self.local)
         if trainer_world_size(self.trainer) != world.size:
             raise AmorError(f"backend {config.run.backend!r} cannot train across {world.size} processes")
         self.meta = run_meta(config, self.env)

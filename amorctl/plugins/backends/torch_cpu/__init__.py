@@ -58,7 +58,8 @@ class TorchCpuBackend:
         )
 
     def make_trainer(self, env: VectorEnv, config: TrainConfig) -> Any:
-        """A :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer` for ``env``."""
+        """A :class:`~amorctl.plugins.backends.torch_cpu.moppo.MOPPOTrainer` for ``env`` (with
+        ``[distill] teachers``: its student variant, :mod:`~amorctl.plugins.backends.torch_cpu.distill`)."""
         from amorctl.plugins.backends.torch_cpu.moppo import MOPPOTrainer
 
         if config.run.threads > 0:
@@ -67,6 +68,18 @@ class TorchCpuBackend:
             raise AmorError('[ppo] precision = "bf16", but this CPU has no native bf16 (AVX512-BF16 or AMX)')
         bf16 = config.ppo.precision == "bf16" or (config.ppo.precision == "auto" and bf16_supported())
         distributed = _process_group_size() > 1  # under torchrun: data-parallel over the group
+        if config.distill.teachers:  # the student of the teachers the env carries (docs/distill.md)
+            from amorctl.plugins.backends.torch_cpu.distill import DistillTrainer
+
+            return DistillTrainer(
+                env,
+                config.network,
+                config.ppo,
+                seed=config.run.seed,
+                learning_rate=config.distill.learning_rate,
+                bf16=bf16,
+                distributed=distributed,
+            )
         return MOPPOTrainer(
             env, config.network, config.ppo, seed=config.run.seed, bf16=bf16, distributed=distributed
         )

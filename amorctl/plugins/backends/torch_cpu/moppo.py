@@ -325,25 +325,10 @@ class MOPPOTrainer:
         ratio = torch.exp(log_ratio)
 
         adv = self.scalarized_advantage(batch, idx)
-        scale = self.return_scale
         clip = self.cfg.clip_coef
         policy_loss = clipped_surrogate(adv, ratio, clip, xp=torch).mean()
 
-        # value loss over all C channels (in units of each objective's return std when scaled)
-        returns, old_values = batch.returns[idx], batch.values[idx]
-        if scale is None:  # the paper's loss, in the objectives' own units
-            value_err = (values - returns) ** 2
-            if self.cfg.clip_value_loss:
-                clipped = old_values + torch.clamp(values - old_values, -clip, clip)
-                value_err = torch.max(value_err, (clipped - returns) ** 2)
-        else:
-            sigma = scale.return_std()  # [m]
-            value_err = ((values - returns) / sigma) ** 2
-            if self.cfg.clip_value_loss:
-                clipped = old_values + torch.clamp(values - old_values, -clip * sigma, clip * sigma)
-                value_err = torch.max(value_err, ((clipped - returns) / sigma) ** 2)
-        value_loss = 0.5 * value_err.mean()
-
+        value_loss = self.value_loss(values, batch, idx)
         entropy = gaussian_entropy(log_std, xp=torch)
         loss = policy_loss + self.cfg.value_coef * value_loss - self.cfg.entropy_coef * entropy
 
@@ -359,6 +344,26 @@ class MOPPOTrainer:
                 "clip_fraction": ((ratio - 1).abs() > clip).float().mean(),
             }
         return loss, stats
+
+    def value_loss(self, values: torch.Tensor, batch: Batch, idx: torch.Tensor) -> torch.Tensor:
+        """Half the mean squared error of the critic's values [k, C] against the returns of the
+        samples ``idx``, over all C channels (in units of each channel's return std when scaled),
+        clipped around the rollout's values as PPO does with ``clip_value_loss``."""
+        assert batch.returns is not None, "call compute_returns first"
+        returns, old_values = batch.returns[idx], batch.values[idx]
+        clip, scale = self.cfg.clip_coef, self.return_scale
+        if scale is None:  # the paper's loss, in the objectives' own units
+            value_err = (values - returns) ** 2
+            if self.cfg.clip_value_loss:
+                clipped = old_values + torch.clamp(values - old_values, -clip, clip)
+                value_err = torch.max(value_err, (clipped - returns) ** 2)
+        else:
+            sigma = scale.return_std()  # [m]
+            value_err = ((values - returns) / sigma) ** 2
+            if self.cfg.clip_value_loss:
+                clipped = old_values + torch.clamp(values - old_values, -clip * sigma, clip * sigma)
+                value_err = torch.max(value_err, ((clipped - returns) / sigma) ** 2)
+        return 0.5 * value_err.mean()
 
     def scalarized_advantage(self, batch: Batch, idx: torch.Tensor) -> torch.Tensor:
         """The policy's advantage [k] of the samples ``idx``: each sample's vector advantage
