@@ -1,4 +1,5 @@
-"""The documentation stands on its own: every relative link resolves to a file in the repository."""
+"""The documentation stands on its own: every relative link resolves to a file in the repository,
+and every `#anchor` to a heading of that file."""
 
 from __future__ import annotations
 
@@ -68,3 +69,39 @@ def test_the_observation_table_is_the_one_layout_definition() -> None:
     assert list(layout) == [name for name, _ in OBSERVATION_TERMS]
     assert [s.stop - s.start for s in layout.values()] == [101, 40, 101, 16, 202, 7]
     assert layout["weights"].stop == 101 + 40 + 101 + 16 + 202 + 7  # contiguous, w last
+
+
+_HEADING = re.compile(r"^#{1,6}\s+(.*?)\s*#*\s*$", re.M)
+
+
+def heading_anchors(markdown: str) -> set[str]:
+    """The ``#anchor`` names a markdown file offers: GitHub's heading slugs (lower case, punctuation
+    dropped, spaces to hyphens, ``-1``, ``-2`` ... for repeats) and explicit ``<a id=...>``."""
+    text = _FENCE.sub("", markdown)
+    seen: dict[str, int] = {}
+    out = set(re.findall(r"<a\s+(?:id|name)=\"([^\"]+)\"", text))
+    for heading in _HEADING.findall(text):
+        slug = re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+        out.add(slug if slug not in seen else f"{slug}-{seen[slug]}")
+        seen[slug] = seen.get(slug, 0) + 1
+    return out
+
+
+def test_heading_anchors() -> None:
+    md = "# Where the motors run out, while it tries\n## `run` alone\n## Notes\n## Notes\n```\n# no\n```\n"
+    expected = {"where-the-motors-run-out-while-it-tries", "run-alone", "notes", "notes-1"}
+    assert heading_anchors(md) == expected
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_anchor_names_a_heading_of_its_file(doc: Path) -> None:
+    text = _CODE.sub("", _FENCE.sub("", doc.read_text()))
+    broken = []
+    for target in _INLINE.findall(text):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target, re.I) or "#" not in target:
+            continue
+        file, anchor = target.split("#", 1)
+        path = (doc.parent / file).resolve() if file else doc
+        if path.suffix == ".md" and path.exists() and anchor not in heading_anchors(path.read_text()):
+            broken.append(target)
+    assert not broken, f"{doc.relative_to(ROOT)}: links to headings that do not exist: {', '.join(broken)}"
