@@ -66,6 +66,20 @@ def test_pretrained_rundir_is_read_only_and_finds_its_dataset(shelf: Path) -> No
     assert not RunDir(shelf).read_only and RunDir(shelf).output_dir("x") == shelf / "x"
 
 
+def test_an_entry_opened_by_its_folder_finds_the_dataset_it_carries(
+    shelf: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An exported entry opened by path (a copy, a stage's shelf) reads its own ``dataset.mcap``;
+    a relative path that exists from the working directory still means that file."""
+    monkeypatch.chdir(tmp_path)
+    run = RunDir.open(shelf / "tiny")
+    assert not run.read_only
+    assert run.dataset_path() == shelf / "tiny" / "dataset.mcap"
+    here = tmp_path / "dataset.mcap"  # another file of the same relative name, where amorctl runs
+    here.write_bytes((shelf / "tiny" / "dataset.mcap").read_bytes())
+    assert RunDir.open(shelf / "tiny").dataset_path() == Path("dataset.mcap")
+
+
 def test_unknown_pretrained_name_lists_the_known(shelf: Path) -> None:
     with pytest.raises(AmorError, match=r"no such pretrained run \(have: (.*, )?tiny"):
         RunDir("pretrained:nope")

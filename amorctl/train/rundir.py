@@ -124,10 +124,14 @@ class RunDir:
         if not self.config_path.is_file():
             raise AmorError(f"{self.path}: no run to resume or open ({CONFIG_FILE} not found)")
         cfg = load_config(self.config_path)
-        if self.pretrained and cfg.env.dataset and not Path(cfg.env.dataset).is_absolute():
+        dataset = Path(cfg.env.dataset) if cfg.env.dataset else None
+        if dataset is not None and not dataset.is_absolute():
             # a pretrained entry carries its dataset: relative to the entry, wherever it is installed
-            env = dataclasses.replace(cfg.env, dataset=str(self.path / cfg.env.dataset))
-            cfg = dataclasses.replace(cfg, env=env)
+            # (also when opened by its folder's path, e.g. a copy made by ``runs export-pretrained``);
+            # any other relative path is read from the directory amorctl runs in
+            carried = self.path / dataset
+            if self.pretrained or (not dataset.is_file() and carried.is_file()):
+                cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, dataset=str(carried)))
         return cfg
 
     # --- the motion dataset -------------------------------------------------------------------
