@@ -17,7 +17,7 @@ import eval_curve
 import lever_rows
 import stage as stage_script
 
-from amorctl.core.config import TrainConfig, merge, to_toml
+from amorctl.core.config import TrainConfig, load_config, merge, to_toml
 from amorctl.envs.synthetic import synthetic_library
 from amorctl.motion.dataset import load_dataset, write_dataset
 from amorctl.registry import get_registry
@@ -85,7 +85,8 @@ def test_two_stages_continue_exactly_and_the_card_records_both(tmp_path: Path, c
             assert rows and ev["survival"] == pytest.approx(np.mean([r["survival"] for r in rows]))
     assert "Training stages" in (entry / "README.md").read_text()
     assert (entry / "figures" / "stages.png").is_file()
-    assert RunDir.open(entry).config.env.dataset == "dataset.mcap"  # the entry is self-contained
+    assert load_config(entry / "config.toml").env.dataset == "dataset.mcap"  # the entry is self-contained
+    assert RunDir.open(entry).dataset_path() == entry / "dataset.mcap"  # found there, opened by path
 
     # the same 4 iterations in one go: the staged run's networks and optimizer are identical
     train_run(config, tmp_path / "straight")
