@@ -72,6 +72,8 @@ class _Display(TrainingView):
         mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else _weight_mode(c)
         if c.distill.teachers:
             mode += f" · student of {len(c.distill.teachers)} teacher run(s)"
+        if c.run.init_from:
+            mode += f" · started from {c.run.init_from}"
         self.begin(
             names,
             start,
@@ -251,6 +253,14 @@ def train(
     resume: Annotated[
         bool, typer.Option("--resume", help="Continue the run in --out from its newest checkpoint.")
     ] = False,
+    run__init_from: Annotated[
+        str | None,
+        typer.Option(
+            "--init-from",
+            help="Start a new run from another run's networks: RUN, pretrained:NAME, optionally "
+            "@ITERATION (docs/train.md).",
+        ),
+    ] = None,
     env__fixed_weights: Annotated[
         str | None,
         typer.Option(

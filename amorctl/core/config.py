@@ -96,6 +96,12 @@ class RunConfig:
     )
     threads: int = _doc(0, "CPU threads for the network (0 = the backend's default)", min=0, max=4096)
     tensorboard: bool = _doc(True, "also write metrics as TensorBoard scalars under tb/")
+    init_from: str = _doc(
+        "",
+        "a run (directory or pretrained:NAME, optionally @ITERATION) whose networks and observation "
+        "normalizer a new run starts from; empty = random initialization (stored absolute, with "
+        "the iteration)",
+    )
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ LEVERS: tuple[str, ...] = (
     "clip_continuation",
     "survival_bonus_scale",
     "distill",
+    "init_from",
 )
 #: ``[env]`` fields that shape training episodes only. Evaluation, sweeps and tuning set them to 0,
 #: so every run is judged by the same episodes (falls end them; nothing else does).
@@ -111,6 +112,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["survival_bonus_scale"] = f"[env] survival_bonus_scale = {config.env.survival_bonus_scale:g}"
     if config.distill.teachers:
         used["distill"] = f"[distill] teachers = {list(config.distill.teachers)!r}"
+    if config.run.init_from:
+        used["init_from"] = f"[run] init_from = {config.run.init_from!r}"
     return used
 
 

@@ -50,6 +50,7 @@ from amorctl.train.checkpoint import (
 )
 from amorctl.train.distill import Taught, load_teachers, record_teachers, student_library
 from amorctl.train.episode_stats import EpisodeRecorder
+from amorctl.train.init_from import record_init_from, source_networks, start_from
 from amorctl.train.metrics import METRICS_FILE, TB_DIR, MetricsLog
 from amorctl.train.rundir import (
     CHECKPOINT_DIR,
@@ -224,7 +225,7 @@ def train_run(
     check_backend_levers(config, get_registry().backend(config.run.backend).levers)
     callbacks = Callbacks(on_start, on_iteration, on_note, stop_after, stop_when)
     if not resume:  # stored absolute with its SHA-256: the run works from anywhere (rundir.py)
-        config = record_teachers(record_dataset(config))
+        config = record_init_from(record_teachers(record_dataset(config)))
     if run.read_only:
         raise AmorError(
             f"{run.label}: pretrained runs are read-only and carry no optimizer state, so they "
@@ -265,7 +266,7 @@ def train_run(
                 runner = Runner(config, run, world, callbacks, warnings, saved)
                 try:
                     with world.agreeing():
-                        start = runner.load(ckpt) if ckpt is not None else runner.write_config()
+                        start = runner.load(ckpt) if ckpt is not None else runner.start_new()
                     return runner.learn(start)
                 finally:
                     runner.close()
@@ -327,8 +328,15 @@ class Runner:
         self.resumed_from: Path | None = None
         self.last_path: Path | None = None  # the newest complete checkpoint
 
+    def start_new(self) -> int:
+        """Start a new run: its networks from ``run.init_from`` if set (checked first), then rank
+        0 writes its config. Returns the first iteration, 0."""
+        if self.config.run.init_from:
+            start_from(self.trainer, source_networks(self.config, self.env))
+        return self.write_config()
+
     def write_config(self) -> int:
-        """Start a new run: rank 0 writes its config. Returns the first iteration, 0."""
+        """Rank 0 writes the new run's config. Returns the first iteration, 0."""
         if self.world.is_main:
             self.run.path.mkdir(parents=True, exist_ok=True)
             atomic_write_text(self.run.config_path, to_toml(self.config))
