@@ -138,3 +138,21 @@ def test_a_tracking_run_starts_from_one_of_the_same_character_and_action_mode(
     with pytest.raises(AmorError, match=r"init_from: .*action_mode = 'residual', this run has 'absolute'"):
         train_run(other, tmp_path / "other")
     assert not (tmp_path / "other").exists()
+
+
+def test_an_exported_run_says_where_it_started(toy_smooth_run: Path, tmp_path: Path) -> None:
+    """The card, its README and `runs list --pretrained` name the run a pretrained entry started from."""
+    from amorctl.cli.runs import _pretrained_block
+    from amorctl.train.pretrained_export import export_pretrained
+
+    started = tmp_path / "started"
+    train_run(_config(toy_smooth_run, run={"init_from": f"{toy_smooth_run}@40"}), started)
+    entry = export_pretrained(started, "started", tmp_path / "shelf", commit="test")
+    assert entry.card["init_from"] == f"{toy_smooth_run.resolve()}@40"
+    assert (
+        f"started from the networks of: `{toy_smooth_run.resolve()}@40`"
+        in (entry.path / "README.md").read_text()
+    )
+    assert f"started from {toy_smooth_run.name}@40" in _pretrained_block("pretrained:started", entry.card)
+    plain = export_pretrained(toy_smooth_run, "plain", tmp_path / "shelf", commit="test")
+    assert plain.card["init_from"] is None and "started from" not in _pretrained_block("p", plain.card)

@@ -111,9 +111,11 @@ def _pretrained_block(reference: str, card: dict[str, Any]) -> str:
     stages = len(card.get("stages") or []) if card.get("resumable") else 0
     in_stages = f" in {stages} stage{'s' if stages != 1 else ''}" if stages else ""
     commit = (card.get("commit") or "an unrecorded commit")[:12]
+    started = f" · started from {Path(card['init_from']).name}" if card.get("init_from") else ""
     return (
         f"\n{reference}  {card.get('character')} · {clips} · "
-        f"{card.get('env_steps', 0) / 1e6:.1f} M env steps{in_stages}, {_minutes(card.get('wall_time_s'))}\n"
+        f"{card.get('env_steps', 0) / 1e6:.1f} M env steps{in_stages}, {_minutes(card.get('wall_time_s'))}"
+        f"{started}\n"
         f"  measured: {_headline(card)}\n"
         f"  {card.get('description') or '(no description)'}; trained by "
         f"`{card.get('command') or 'not recorded'}` at {commit}"

@@ -49,6 +49,7 @@ CARD_KEYS = (
     "command",
     "commit",
     "source_run",
+    "init_from",
     "created_utc",
     "dataset",
     "summary",

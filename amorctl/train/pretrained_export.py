@@ -268,6 +268,7 @@ def _card(
         "command": command,
         "commit": git_commit(Path.cwd()) if commit is None else commit,
         "source_run": run.label,
+        "init_from": cfg.run.init_from or None,
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "dataset": data,
         "summary": _last_metrics(run.metrics_path),
@@ -304,6 +305,8 @@ def card_markdown(card: dict[str, Any]) -> str:
         f"- code version: {card.get('commit') or 'not recorded'}; source run: {card.get('source_run')}",
         f"- made: {card.get('created_utc')}",
     ]
+    if card.get("init_from"):
+        lines.append(f"- started from the networks of: `{card['init_from']}` (`amorctl train --init-from`)")
     if card.get("summary"):
         shown = ", ".join(f"{k} {v:.4g}" for k, v in card["summary"].items())
         lines.append(f"- last training iteration: {shown}")
