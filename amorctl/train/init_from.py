@@ -27,12 +27,11 @@ from amorctl.core.config import TrainConfig
 from amorctl.core.contracts import Trainer
 from amorctl.core.errors import AmorError
 from amorctl.train import pretrained
+from amorctl.train.distill import SHARED_ENV
 from amorctl.train.rundir import RunDir
 
 #: Trainer checkpoint arrays a new run takes over: the networks and the observation normalizer.
 NETWORK_PREFIXES = ("actor.", "critic.", "normalizer.", "survival_critic.")
-#: ``[env]`` fields a tracking source must share with the new run (they shape what actions mean).
-SHARED_TRACKING_ENV = ("character", "objective_set", "action_mode")
 WHERE = "[run] init_from"
 
 
@@ -120,7 +119,7 @@ def _check_same_env(mine: TrainConfig, theirs: TrainConfig, where: str) -> None:
         raise AmorError(f"{where}: trained on env.kind = {theirs.env.kind!r}, this run has {mine.env.kind!r}")
     if mine.env.kind != "tracking":
         return
-    for key in SHARED_TRACKING_ENV:
+    for key in SHARED_ENV:  # what a distillation teacher must share too
         a, b = getattr(mine.env, key), getattr(theirs.env, key)
         if a != b:
             raise AmorError(f"{where}: trained with [env] {key} = {b!r}, this run has {a!r}")
