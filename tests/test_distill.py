@@ -182,3 +182,94 @@ def test_train_command_shows_a_student_and_its_teacher_action_error(
            if "teacher action MAE " in line]  # fmt: skip
     assert len(mae) >= 1 and all(np.isfinite(mae)) and mae[0] > 0, text
     assert "entropy" not in text.split("student of")[1]  # MOPPO's loss terms are not shown
+
+
+def _kickstarted(env, teacher: ClipConstantTeacher, config: TrainConfig, kl_coef: float, fade: int):
+    from amorctl.plugins.backends.torch_cpu.distill import DistillTrainer
+
+    torch.set_num_threads(1)
+    return DistillTrainer(Taught(env, teacher), config.network, config.ppo, seed=0, learning_rate=3e-3,
+                          kickstart=(kl_coef, fade))  # fmt: skip
+
+
+def test_kickstarting_adds_the_fading_teacher_kl_to_moppos_loss(make_tracking_run, tmp_path: Path) -> None:
+    """``[distill] rewards = true``: the loss is MOPPO's plus kl_coef(t) x KL(teacher || student),
+    the coefficient falling linearly to 0 over kl_fade_iterations; a strong KL pulls the actions
+    to the teachers', the rewards alone (kl_coef 0) leave them far from them."""
+    from amorctl.envs.factory import make_env
+
+    make_tracking_run(tmp_path, "kickstart test data")
+    config = _student_config(tmp_path, ["unused: the test hands its own teacher"])
+    backend = get_registry().backend("torch-cpu").make()
+    errors = {}
+    for coef in (5.0, 0.0):
+        env = make_env(config, backend)
+        teacher = ClipConstantTeacher(env.action_dim)
+        trainer = _kickstarted(env, teacher, config, coef, fade=0)
+        for _ in range(40):
+            last = trainer.iteration()
+        target, _ = teacher(trainer.obs.numpy(), env.tracking_view().clip_index())
+        errors[coef] = float(np.abs(trainer.act(trainer.obs.numpy()) - target).mean())
+        env.close()
+        assert last["distill/kl_coef"] == pytest.approx(coef)
+        # MOPPO's terms are all there, and the KL's weight on top of them
+        moppo = last["loss/policy"] + config.ppo.value_coef * last["loss/value"]
+        moppo -= config.ppo.entropy_coef * last["loss/entropy"]
+        assert last["loss/total"] == pytest.approx(moppo + coef * last["distill/kl"], rel=1e-4, abs=1e-5)
+    assert errors[5.0] < 0.06 < 0.2 < errors[0.0], errors
+
+    env = make_env(config, backend)
+    trainer = _kickstarted(env, ClipConstantTeacher(env.action_dim), config, 2.0, fade=10)
+    coefs = []
+    for _ in range(12):
+        coefs.append(trainer.kl_coef())
+        trainer.iteration()
+    env.close()
+    assert coefs[:3] == pytest.approx([2.0, 1.8, 1.6]) and coefs[5] == pytest.approx(1.0)
+    assert coefs[10:] == [0.0, 0.0]
+
+
+def test_kickstart_settings_need_teachers_and_rewards() -> None:
+    with pytest.raises(AmorError, match=r"\[distill\] rewards = true need \[distill\] teachers"):
+        merge(TrainConfig(), {"distill": {"rewards": True}}, "test")
+    with pytest.raises(AmorError, match=r"\[distill\] kl_coef = 2 need \[distill\] rewards = true"):
+        merge(TrainConfig(), {"distill": {"teachers": ["x"], "kl_coef": 2.0}}, "test")
+    with pytest.raises(AmorError, match=r"kl_fade_iterations"):
+        merge(TrainConfig(), {"distill": {"teachers": ["x"], "kl_fade_iterations": -1}}, "test")
+    config = merge(
+        TrainConfig(), {"distill": {"teachers": ["x"], "rewards": True, "kl_fade_iterations": 50}}, "test"
+    )
+    assert config.distill.rewards and config.distill.kl_fade_iterations == 50
+
+
+def test_train_command_shows_a_kickstarted_run(
+    teacher_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Kickstarting: the header says so and each progress line shows MOPPO's losses beside the
+    teachers' weighted KL, the coefficient fading on schedule."""
+    from amorctl.cli.main import main
+
+    config = _student_config(teacher_run.parent, [str(teacher_run)])
+    (tmp_path / "k.toml").write_text(
+        f'[env]\ndataset = "{config.env.dataset}"\nnum_envs = 8\nepisode_seconds = 0.4\n'
+        "[network]\nactor_hidden = [32]\ncritic_hidden = [16]\n"
+        '[ppo]\nnum_steps = 8\nnum_minibatches = 2\nprecision = "fp32"\n'
+        "[run]\ntensorboard = false\nthreads = 1\n"
+        f'[distill]\nteachers = ["{teacher_run}"]\nrewards = true\nkl_coef = 0.5\nkl_fade_iterations = 2\n'
+    )
+    code = main(
+        ["train", "--config", str(tmp_path / "k.toml"), "--out", str(tmp_path / "k"), "--iterations", "3"]
+    )
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    text = out + err
+    assert "kickstarted by 1 teacher run(s)" in text
+    shown = [
+        line.split("teacher KL ")[1].split(" x ")[1] for line in text.splitlines() if "teacher KL " in line
+    ]
+    coefs = [float(part.split()[0].rstrip(")")) for part in shown]
+    assert coefs and coefs[0] == pytest.approx(0.5), text
+    metrics = (tmp_path / "k" / "metrics.csv").read_text().splitlines()
+    header = metrics[0].split(",")
+    column = [float(row.split(",")[header.index("distill/kl_coef")]) for row in metrics[1:]]
+    assert column == pytest.approx([0.5, 0.25, 0.0])

@@ -39,10 +39,20 @@ SIGNAL_EXIT = {"SIGINT": 130, "SIGTERM": 143}
 
 #: the metric only a distillation student reports (docs/distill.md)
 DISTILL_MAE = "distill/action_mae"
+#: the metric only a kickstarted run reports: its teachers' KL term (docs/distill.md, "Kickstarting")
+KICKSTART_KL = "distill/kl"
 
 
 def _losses(m: dict[str, float]) -> str:
-    """The update's losses: MOPPO's, or a student's distillation loss and teacher action error."""
+    """The update's losses: MOPPO's, a student's distillation loss and teacher action error, or
+    (kickstarting) MOPPO's with the teachers' weighted KL beside them."""
+    if KICKSTART_KL in m:
+        return (
+            f"loss {fmt(m['loss/total'])} (policy {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])}, "
+            f"teacher KL {fmt(m['distill/kl'])} x {fmt(m['distill/kl_coef'])})   "
+            f"teacher action MAE {fmt(m[DISTILL_MAE])} rad   KL {fmt(m['kl'])}   "
+            f"clip {fmt(m['clip_fraction'], '.2f')}"
+        )
     if DISTILL_MAE in m:
         return (
             f"loss {fmt(m['loss/total'])} (distill {fmt(m['loss/policy'])}, value {fmt(m['loss/value'])})   "
@@ -71,7 +81,8 @@ class _Display(TrainingView):
         where = c.env.character if c.env.kind == "tracking" else (c.env.gym_id or c.env.kind)
         mode = f"fixed w ({c.env.fixed_weights})" if c.env.fixed_weights else _weight_mode(c)
         if c.distill.teachers:
-            mode += f" · student of {len(c.distill.teachers)} teacher run(s)"
+            role = "kickstarted by" if c.distill.rewards else "student of"
+            mode += f" · {role} {len(c.distill.teachers)} teacher run(s)"
         if c.run.init_from:
             mode += f" · started from {c.run.init_from}"
         self.begin(
@@ -118,6 +129,11 @@ class _Display(TrainingView):
             f"{m['env_steps_per_s']:,.0f} steps/s ({'bf16' if m.get('bf16') else 'fp32'})  "
             f"loss {fmt(m['loss/total'])}  value {fmt(m['loss/value'])}  kl {fmt(m['kl'])}  "
             + (f"teacher action MAE {fmt(m[DISTILL_MAE])}  " if DISTILL_MAE in m else "")
+            + (
+                f"teacher KL {fmt(m['distill/kl'])} x {fmt(m['distill/kl_coef'])}  "
+                if "distill/kl" in m
+                else ""
+            )
             + f"ep len {fmt(m['episode/length'], '.1f')}  "
             f"survival {fmt(m['episode/survival'], '.2f')}  returns {self.per_objective(m, 'return')}"
             + (f"  survival by family: {families}" if (families := family_survival(m)) else "")

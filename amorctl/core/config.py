@@ -264,7 +264,8 @@ class WeightsConfig:
 @dataclass(frozen=True)
 class DistillConfig:
     """Teacher-student training (docs/distill.md): the student imitates per-clip teacher policies
-    on the states it visits itself, instead of learning from rewards."""
+    on the states it visits itself, instead of learning from rewards (or, with ``rewards``, beside
+    them: kickstarting)."""
 
     teachers: tuple[str, ...] = _doc(
         (),
@@ -279,6 +280,20 @@ class DistillConfig:
         "do not apply: its KL rule would stop a student that follows its teachers quickly)",
         gt=0,
         max=1,
+    )
+    rewards: bool = _doc(
+        False,
+        "kickstarting: learn from the rewards as MOPPO does and keep kl_coef x KL(teacher || student) "
+        "beside its loss (false = imitate the teachers alone)",
+    )
+    kl_coef: float = _doc(
+        1.0, "with rewards = true: the weight of the teachers' KL term at iteration 0", min=0, max=1e3
+    )
+    kl_fade_iterations: int = _doc(
+        0,
+        "with rewards = true: iterations over which kl_coef falls linearly to 0 (0 = it stays)",
+        min=0,
+        max=10**9,
     )
 
 

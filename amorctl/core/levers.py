@@ -68,6 +68,15 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             f"[distill] teachers need the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
         (
+            config.distill.teachers or not _kickstart_settings(config),
+            f"[distill] {', '.join(_kickstart_settings(config))} need [distill] teachers",
+        ),
+        (
+            config.distill.rewards or not _kickstart_settings(config, with_rewards=False),
+            f"[distill] {', '.join(_kickstart_settings(config, with_rewards=False))} need [distill] "
+            "rewards = true (an imitating student's loss is the KL alone)",
+        ),
+        (
             config.env.survival_bonus_scale == 1.0 or kind == "tracking",
             f"[env] survival_bonus_scale needs the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
@@ -86,6 +95,17 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             f"{', '.join(map(repr, SURVIVAL_BONUS_KINDS))}; got {kind!r})",
         ),
     ]
+
+
+def _kickstart_settings(config: TrainConfig, with_rewards: bool = True) -> list[str]:
+    """The kickstarting settings of ``[distill]`` that differ from their defaults."""
+    d = config.distill
+    settings = ["rewards = true"] if with_rewards and d.rewards else []
+    if d.kl_coef != 1.0:
+        settings.append(f"kl_coef = {d.kl_coef:g}")
+    if d.kl_fade_iterations != 0:
+        settings.append(f"kl_fade_iterations = {d.kl_fade_iterations}")
+    return settings
 
 
 def levers_in_use(config: TrainConfig) -> dict[str, str]:

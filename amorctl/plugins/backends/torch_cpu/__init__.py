@@ -79,6 +79,9 @@ class TorchCpuBackend:
                 learning_rate=config.distill.learning_rate,
                 bf16=bf16,
                 distributed=distributed,
+                kickstart=(config.distill.kl_coef, config.distill.kl_fade_iterations)
+                if config.distill.rewards
+                else None,
             )
         return MOPPOTrainer(
             env, config.network, config.ppo, seed=config.run.seed, bf16=bf16, distributed=distributed

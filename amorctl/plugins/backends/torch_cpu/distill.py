@@ -11,6 +11,12 @@ learns the teachers' whole weight-conditioned behaviour. The critic learns as in
 targets from the student's own rollouts, the same value loss), so a distilled run is an ordinary
 run afterwards: evaluate, pareto, tune, deploy, or further MOPPO training from its checkpoint.
 
+With ``[distill] rewards = true`` the student also learns from the rewards (kickstarting,
+Schmitt et al. 2018): its actor's loss is MOPPO's (clipped surrogate of the scalarized advantage,
+entropy bonus) plus ``kl_coef`` x the same KL, the coefficient falling linearly to 0 over
+``kl_fade_iterations`` (counted from the run's first iteration, so a resumed run fades on
+schedule). The teachers keep what the rewards alone would let go of; the rewards improve on them.
+
 Rollout, returns, minibatches, data-parallel replicas and checkpoints are MOPPO's; the learning
 rate is ``[distill] learning_rate``, fixed (MOPPO's KL rule would shrink it to its floor while
 the student, rightly, moves far from its last policy at every step). A checkpoint also records which
@@ -72,13 +78,17 @@ class DistillTrainer(MOPPOTrainer):
         learning_rate: float,
         bf16: bool = False,
         distributed: bool = False,
+        kickstart: tuple[float, int] | None = None,
     ) -> None:
+        """``kickstart``: (kl_coef, kl_fade_iterations) to learn from the rewards too, or None to
+        imitate the teachers alone."""
         teacher, view = teacher_of(env), tracking_view(env)
         if teacher is None or view is None:
             raise AmorError(
                 "[distill] teachers: the training env carries no teachers (the training loop attaches them)"
             )
         self.teacher = teacher
+        self.kickstart = kickstart
         self.clip_log = ClipLog(env, view)
         #: the rollout's teacher labels: action mean [B, A], log std [B, A]
         self.labels: tuple[torch.Tensor, torch.Tensor] | None = None
@@ -99,27 +109,45 @@ class DistillTrainer(MOPPOTrainer):
         return batch, times
 
     def _adapt_learning_rate(self, kl: float) -> None:
-        """The student's learning rate stays fixed (``[distill] learning_rate``)."""
+        """The student's learning rate stays fixed (``[distill] learning_rate``), kickstarting too:
+        after a student, MOPPO's KL rule held the rate at its floor from the first iteration
+        (docs/repertoire.md, "More teachers, and MOPPO after distillation")."""
+
+    def kl_coef(self) -> float:
+        """The teachers' KL weight this iteration: 1 when imitating; with kickstarting,
+        ``kl_coef x max(0, 1 - iteration / kl_fade_iterations)`` (no fade when that is 0)."""
+        if self.kickstart is None:
+            return 1.0
+        coef, fade = self.kickstart
+        return coef if fade == 0 else coef * max(0.0, 1.0 - self.iteration_count / fade)
 
     def minibatch_loss(self, batch: Batch, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """``KL(teacher || student)`` + ``value_coef`` x MOPPO's value loss on the samples ``idx``."""
+        """On the samples ``idx``: ``KL(teacher || student)`` + ``value_coef`` x MOPPO's value loss;
+        kickstarting: MOPPO's loss + :meth:`kl_coef` x that KL."""
         assert self.labels is not None, "collect a rollout first"
         mean, values = self._forward(batch.obs[idx])
         assert values is not None
         teacher_mean, teacher_log_std = self.labels[0][idx], self.labels[1][idx]
         log_std = self.actor.log_std
         distill_loss = gaussian_kl(teacher_mean, teacher_log_std, mean, log_std, xp=torch).mean()
-        value_loss = self.value_loss(values, batch, idx)
-        loss = distill_loss + self.cfg.value_coef * value_loss
-        with torch.no_grad():
-            kl = gaussian_kl(batch.means[idx], batch.old_log_std, mean, log_std, xp=torch).mean()
-            stats = {
-                "loss/total": loss.detach(),
-                "loss/policy": distill_loss.detach(),
-                "loss/value": value_loss.detach(),
-                "kl": kl,
-                "distill/action_mae": (mean - teacher_mean).abs().mean(),
-            }
+        if self.kickstart is None:
+            value_loss = self.value_loss(values, batch, idx)
+            loss = distill_loss + self.cfg.value_coef * value_loss
+            with torch.no_grad():
+                stats = {
+                    "loss/total": loss.detach(),
+                    "loss/policy": distill_loss.detach(),
+                    "loss/value": value_loss.detach(),
+                    "kl": gaussian_kl(batch.means[idx], batch.old_log_std, mean, log_std, xp=torch).mean(),
+                }
+        else:
+            coef = self.kl_coef()
+            loss, stats = self.reward_loss(batch, idx, mean, values)
+            loss = loss + coef * distill_loss
+            stats["loss/total"] = loss.detach()
+            stats["distill/kl"] = distill_loss.detach()
+            stats["distill/kl_coef"] = torch.tensor(coef)
+        stats["distill/action_mae"] = (mean - teacher_mean).abs().mean().detach()
         return loss, stats
 
     def state_dict(self) -> Snapshot:

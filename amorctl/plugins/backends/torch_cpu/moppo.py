@@ -316,9 +316,16 @@ class MOPPOTrainer:
     # ------------------------------------------------------------------ 3. update
     def minibatch_loss(self, batch: Batch, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The MOPPO loss on the samples ``idx`` of ``batch``; returns (loss, detached stats)."""
-        assert batch.advantages is not None and batch.returns is not None, "call compute_returns first"
         mean, values = self._forward(batch.obs[idx])
         assert values is not None
+        return self.reward_loss(batch, idx, mean, values)
+
+    def reward_loss(
+        self, batch: Batch, idx: torch.Tensor, mean: torch.Tensor, values: torch.Tensor
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """MOPPO's loss (clipped surrogate, value loss, entropy bonus) on the samples ``idx``, given
+        the actor's means [k, A] and the critic's channel values [k, C] of their observations."""
+        assert batch.advantages is not None and batch.returns is not None, "call compute_returns first"
         log_std = self.actor.log_std
         log_prob = gaussian_log_prob(batch.actions[idx], mean, log_std, xp=torch)
         log_ratio = log_prob - batch.log_probs[idx]
