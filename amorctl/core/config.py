@@ -276,8 +276,9 @@ class DistillConfig:
     )
     learning_rate: float = _doc(
         5e-4,
-        "the Adam learning rate of a student (and of a kickstarted run), fixed (MOPPO's [ppo] learning_rate and lr_schedule "
-        "do not apply: its KL rule would stop a student that follows its teachers quickly)",
+        "the Adam learning rate of a student (and of a kickstarted run), fixed (MOPPO's [ppo] "
+        "learning_rate and lr_schedule do not apply: its KL rule would stop a student that follows "
+        "its teachers quickly)",
         gt=0,
         max=1,
     )
