@@ -230,9 +230,9 @@ def test_kickstarting_adds_the_fading_teacher_kl_to_moppos_loss(make_tracking_ru
 
 
 def test_kickstart_settings_need_teachers_and_rewards() -> None:
-    with pytest.raises(AmorError, match=r"\[distill\] rewards = true need \[distill\] teachers"):
+    with pytest.raises(AmorError, match=r"\[distill\] rewards = true needs \[distill\] teachers"):
         merge(TrainConfig(), {"distill": {"rewards": True}}, "test")
-    with pytest.raises(AmorError, match=r"\[distill\] kl_coef = 2 need \[distill\] rewards = true"):
+    with pytest.raises(AmorError, match=r"\[distill\] kl_coef = 2 needs \[distill\] rewards = true"):
         merge(TrainConfig(), {"distill": {"teachers": ["x"], "kl_coef": 2.0}}, "test")
     with pytest.raises(AmorError, match=r"kl_fade_iterations"):
         merge(TrainConfig(), {"distill": {"teachers": ["x"], "kl_fade_iterations": -1}}, "test")

@@ -69,12 +69,12 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
         ),
         (
             config.distill.teachers or not _kickstart_settings(config),
-            f"[distill] {', '.join(_kickstart_settings(config))} need [distill] teachers",
+            f"[distill] {_needs(_kickstart_settings(config))} [distill] teachers",
         ),
         (
             config.distill.rewards or not _kickstart_settings(config, with_rewards=False),
-            f"[distill] {', '.join(_kickstart_settings(config, with_rewards=False))} need [distill] "
-            "rewards = true (an imitating student's loss is the KL alone)",
+            f"[distill] {_needs(_kickstart_settings(config, with_rewards=False))} [distill] rewards = "
+            "true (an imitating student's loss is the KL alone)",
         ),
         (
             config.env.survival_bonus_scale == 1.0 or kind == "tracking",
@@ -106,6 +106,11 @@ def _kickstart_settings(config: TrainConfig, with_rewards: bool = True) -> list[
     if d.kl_fade_iterations != 0:
         settings.append(f"kl_fade_iterations = {d.kl_fade_iterations}")
     return settings
+
+
+def _needs(settings: list[str]) -> str:
+    """``"a = 1 needs"`` / ``"a = 1, b = 2 need"``."""
+    return f"{', '.join(settings)} {'needs' if len(settings) == 1 else 'need'}"
 
 
 def levers_in_use(config: TrainConfig) -> dict[str, str]:
