@@ -344,3 +344,20 @@ def test_science_sc_preset_is_science_plus_the_survival_channel() -> None:
     # science_sc keeps the entropy coefficient it was measured with (0); science has 0.005 since
     assert sc.ppo.entropy_coef == 0.0
     assert dataclasses.replace(sc.ppo, survival_channel=False, entropy_coef=0.005) == science.ppo
+
+
+@pytest.mark.parametrize("floor", [1e-6, 1e-8])
+def test_the_adaptive_learning_rate_stops_at_its_configured_floor(floor: float) -> None:
+    """A KL far above ``desired_kl`` divides the rate by 1.5 per minibatch step down to
+    ``[ppo] min_learning_rate`` and no further."""
+    from amorctl.core.ppo_math import adapt_learning_rate
+
+    trainer = make_trainer(tiny_config(ppo__desired_kl=1e-9, ppo__min_learning_rate=floor))
+    trainer.iteration()  # a real update: its KL is far above 2e-9, so each step divides the rate
+    assert trainer.learning_rate < 3e-3 / 1.5**7
+    for _ in range(60):  # 3e-3 / 1.5**60 is far below either floor
+        trainer._adapt_learning_rate(1.0)
+    assert trainer.learning_rate == pytest.approx(floor)
+    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(floor)
+    assert adapt_learning_rate(1.2e-8, 1.0, 0.02, lr_min=1e-8) == pytest.approx(1e-8)
+    assert adapt_learning_rate(1.2e-8, 1.0, 0.02) == pytest.approx(1e-6)  # rsl_rl's floor by default

@@ -208,6 +208,9 @@ class PPOConfig:
         choices=LR_SCHEDULES,
     )
     desired_kl: float = _doc(0.02, "target KL per minibatch for the adaptive learning rate", gt=0, max=100)
+    min_learning_rate: float = _doc(
+        1e-6, "the adaptive learning rate's floor (docs/moppo.md)", gt=0, max=1e-2
+    )
     max_grad_norm: float = _doc(1.0, "clip the global gradient norm to this", gt=0, max=1e6)
     normalize_obs: bool = _doc(True, "running mean/std observation normalization (saved with the policy)")
     precision: str = _doc(

@@ -47,9 +47,9 @@ def approx_kl(ratio: Any, log_ratio: Any) -> Any:
     return (ratio - 1) - log_ratio
 
 
-def adapt_learning_rate(lr: Any, kl: Any, desired_kl: float, xp: Any = np) -> Any:
+def adapt_learning_rate(lr: Any, kl: Any, desired_kl: float, xp: Any = np, lr_min: float = LR_MIN) -> Any:
     """rsl_rl's rule: divide by 1.5 above ``2 desired_kl``, multiply by 1.5 below
-    ``desired_kl / 2`` (and above 0), within ``[LR_MIN, LR_MAX]``."""
-    down = xp.maximum(LR_MIN, lr / 1.5)
+    ``desired_kl / 2`` (and above 0), within ``[lr_min, LR_MAX]`` (``[ppo] min_learning_rate``)."""
+    down = xp.maximum(lr_min, lr / 1.5)
     up = xp.minimum(LR_MAX, lr * 1.5)
     return xp.where(kl > 2.0 * desired_kl, down, xp.where((kl > 0) & (kl < 0.5 * desired_kl), up, lr))

@@ -46,6 +46,7 @@ class LossConfig:
     entropy_coef: float
     max_grad_norm: float
     desired_kl: float
+    min_learning_rate: float
     adaptive_lr: bool
     num_epochs: int
     num_minibatches: int
@@ -63,6 +64,7 @@ class LossConfig:
             entropy_coef=ppo.entropy_coef,
             max_grad_norm=ppo.max_grad_norm,
             desired_kl=ppo.desired_kl,
+            min_learning_rate=ppo.min_learning_rate,
             adaptive_lr=ppo.lr_schedule == "adaptive",
             num_epochs=ppo.num_epochs,
             num_minibatches=ppo.num_minibatches,
@@ -282,7 +284,14 @@ def update(
         params = optax.apply_updates(st.params, updates)
         if cfg.adaptive_lr:
             opt_state = with_learning_rate(
-                opt_state, adapt_learning_rate(learning_rate(opt_state), stats["kl"], cfg.desired_kl, xp=jnp)
+                opt_state,
+                adapt_learning_rate(
+                    learning_rate(opt_state),
+                    stats["kl"],
+                    cfg.desired_kl,
+                    xp=jnp,
+                    lr_min=cfg.min_learning_rate,
+                ),
             )
         return TrainState(params, opt_state), stats
 

@@ -430,7 +430,11 @@ class MOPPOTrainer:
 
     def _adapt_learning_rate(self, kl: float) -> None:
         """rsl_rl's rule: divide by 1.5 above 2·desired_kl, multiply by 1.5 below desired_kl/2."""
-        self.learning_rate = float(adapt_learning_rate(self.learning_rate, kl, self.cfg.desired_kl))
+        self.learning_rate = float(
+            adapt_learning_rate(
+                self.learning_rate, kl, self.cfg.desired_kl, lr_min=self.cfg.min_learning_rate
+            )
+        )
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate
 
