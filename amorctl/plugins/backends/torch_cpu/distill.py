@@ -110,7 +110,7 @@ class DistillTrainer(MOPPOTrainer):
 
     def _adapt_learning_rate(self, kl: float) -> None:
         """The student's learning rate stays fixed (``[distill] learning_rate``), kickstarting too:
-        after a student, MOPPO's KL rule held the rate at its floor from the first iteration
+        after a student, MOPPO's KL rule held the rate at 1e-6 to 4e-6 whatever its floor
         (docs/repertoire.md, "More teachers, and MOPPO after distillation")."""
 
     def kl_coef(self) -> float:
