@@ -15,16 +15,16 @@ comment), which :func:`load_config` reads back to the same object.
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
-from typing import Any, get_args, get_origin, get_type_hints
+from typing import Any, get_type_hints
 
 import tomlkit
 
+from amorctl.core.config_values import coerce_value
 from amorctl.core.errors import AmorError
 from amorctl.core.levers import lever_checks
 from amorctl.core.weights import parse_weight_pairs
@@ -73,8 +73,6 @@ PRECISIONS: tuple[str, ...] = ("auto", "fp32", "bf16")
 RETURN_NORMS: tuple[str, ...] = ("off", "value", "value+advantage")
 #: The largest rollout batch (num_envs * num_steps) a config may ask for: 32x the paper's.
 MAX_BATCH = 1 << 22
-#: The longest string field (paths, ids, weight strings).
-MAX_STRING = 4096
 
 
 @dataclass(frozen=True)
@@ -323,69 +321,6 @@ SECTIONS: dict[str, type] = {
 }
 
 
-def _range_text(meta: Mapping[str, Any]) -> str:
-    """The bounds of a field for messages: ``1..100000``, ``> 0 and <= 3600``, ``>= 0``."""
-    lo, hi, gt = meta.get("min"), meta.get("max"), meta.get("gt")
-    if gt is not None:
-        return f"> {gt:g}" + (f" and <= {hi:g}" if hi is not None else "")
-    if lo is not None and hi is not None:
-        return f"{lo:g}..{hi:g}"
-    return f">= {lo:g}" if lo is not None else f"<= {hi:g}"
-
-
-def _in_range(value: float, meta: Mapping[str, Any]) -> bool:
-    lo, hi, gt = meta.get("min"), meta.get("max"), meta.get("gt")
-    return (lo is None or value >= lo) and (hi is None or value <= hi) and (gt is None or value > gt)
-
-
-def _coerce(value: Any, hint: Any, where: str, meta: Mapping[str, Any]) -> Any:
-    """Check one TOML value against a field's type hint and bounds; ints are accepted for floats.
-
-    ``where`` is ``"<source>: [section] key"``; every message starts with it.
-    """
-    if get_origin(hint) is tuple:
-        (item,) = get_args(hint)[:1]
-        if not isinstance(value, list | tuple):
-            raise AmorError(f"{where}: expected a list of {item.__name__}, got {value!r}")
-        longest, fewest = meta.get("max_len"), meta.get("min_len", 1)
-        if len(value) < fewest or (longest is not None and len(value) > longest):
-            raise AmorError(f"{where}: expected {fewest} to {longest} entries, got {len(value)}")
-        items = tuple(_coerce(v, item, where, {}) for v in value)
-        bad = [v for v in items if not _in_range(v, meta)]
-        if bad:
-            raise AmorError(
-                f"{where} = {list(items)!r}: entry {bad[0]!r} is out of range ({_range_text(meta)})"
-            )
-        return items
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise AmorError(f"{where}: expected true or false, got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise AmorError(f"{where}: expected an integer, got {value!r}")
-    elif hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise AmorError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise AmorError(f"{where}: expected a finite number, got {value!r}")
-        value = float(value)
-    elif hint is str:
-        if not isinstance(value, str):
-            raise AmorError(f"{where}: expected a string, got {value!r}")
-        choices = meta.get("choices")
-        if choices is not None and value not in choices:
-            raise AmorError(f"{where} must be one of {', '.join(choices)}, got {value!r}")
-        if len(value) > MAX_STRING or "\x00" in value:
-            raise AmorError(f"{where}: a string of at most {MAX_STRING} characters without NUL expected")
-        return value
-    else:  # pragma: no cover
-        raise AssertionError(f"unsupported config type {hint}")
-    if not _in_range(value, meta):
-        raise AmorError(f"{where} = {value!r} is out of range ({_range_text(meta)})")
-    return value
-
-
 def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") -> TrainConfig:
     """Override ``base`` with a partial config given as nested TOML data.
 
@@ -411,7 +346,9 @@ def merge(base: TrainConfig, data: Mapping[str, Any], source: str = "config") ->
         for key, value in values.items():
             if key not in schema:
                 raise AmorError(f"{source}: unknown key {key!r} in [{section}] (known: {', '.join(schema)})")
-            changes[key] = _coerce(value, hints[key], f"{source}: [{section}] {key}", schema[key].metadata)
+            changes[key] = coerce_value(
+                value, hints[key], f"{source}: [{section}] {key}", schema[key].metadata
+            )
         sections[section] = dataclasses.replace(getattr(base, section), **changes)
     return validate(dataclasses.replace(base, **sections), source)
 
@@ -435,7 +372,7 @@ def validate(config: TrainConfig, source: str = "config") -> TrainConfig:
         obj = getattr(config, section)
         hints = get_type_hints(cls)
         for f in fields(obj):
-            _coerce(getattr(obj, f.name), hints[f.name], f"{source}: [{section}] {f.name}", f.metadata)
+            coerce_value(getattr(obj, f.name), hints[f.name], f"{source}: [{section}] {f.name}", f.metadata)
     e, p = config.env, config.ppo
     batch = e.num_envs * p.num_steps
     checks = [
