@@ -15,7 +15,8 @@ With ``[distill] rewards = true`` the student also learns from the rewards (kick
 Schmitt et al. 2018): its actor's loss is MOPPO's (clipped surrogate of the scalarized advantage,
 entropy bonus) plus ``kl_coef`` x the same KL, the coefficient falling linearly to 0 over
 ``kl_fade_iterations`` (counted from the run's first iteration, so a resumed run fades on
-schedule). The teachers keep what the rewards alone would let go of; the rewards improve on them.
+schedule). The teachers keep what the rewards alone would let go of, the rewards may improve on
+them (measured: docs/repertoire.md, "Kickstarting: the teachers kept beside MOPPO").
 
 Rollout, returns, minibatches, data-parallel replicas and checkpoints are MOPPO's; the learning
 rate is ``[distill] learning_rate``, fixed (MOPPO's KL rule would shrink it to its floor while
@@ -111,7 +112,7 @@ class DistillTrainer(MOPPOTrainer):
     def _adapt_learning_rate(self, kl: float) -> None:
         """The student's learning rate stays fixed (``[distill] learning_rate``), kickstarting too:
         after a student, MOPPO's KL rule held the rate at 1e-6 to 4e-6 whatever its floor
-        (docs/repertoire.md, "More teachers, and MOPPO after distillation")."""
+        (docs/repertoire.md, "Kickstarting: the teachers kept beside MOPPO")."""
 
     def kl_coef(self) -> float:
         """The teachers' KL weight this iteration: 1 when imitating; with kickstarting,
