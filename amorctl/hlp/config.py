@@ -9,14 +9,14 @@ rejected by name. Every default and its source is listed in ``docs/hlp.md``.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
-from typing import Any, get_args, get_origin, get_type_hints
+from typing import Any, get_type_hints
 
 from amorctl.core.config import read_toml, sections_to_toml
+from amorctl.core.config_values import coerce_value
 from amorctl.core.errors import AmorError
 
 
@@ -118,29 +118,6 @@ SECTIONS: dict[str, type] = {
 PRESETS: tuple[str, ...] = ("v30", "v2", "paper")
 
 
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    if get_origin(hint) is tuple:
-        item = get_args(hint)[0]
-        if not isinstance(value, list | tuple):
-            raise AmorError(f"{where}: expected a list of {item.__name__}, got {value!r}")
-        return tuple(_coerce(v, item, where) for v in value)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise AmorError(f"{where}: expected true or false, got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise AmorError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise AmorError(f"{where}: expected a finite number, got {value!r}")
-        return float(value)
-    if not isinstance(value, str):
-        raise AmorError(f"{where}: expected a string, got {value!r}")
-    return value
-
-
 def merge(base: HlpConfig, data: Mapping[str, Any], source: str = "config") -> HlpConfig:
     """Override ``base`` with partial nested TOML data; AmorError names an unknown or bad key."""
     sections: dict[str, Any] = {}
@@ -155,7 +132,8 @@ def merge(base: HlpConfig, data: Mapping[str, Any], source: str = "config") -> H
         for key, value in values.items():
             if key not in known:
                 raise AmorError(f"{source}: unknown key {key!r} in [{section}] (known: {', '.join(known)})")
-            changes[key] = _coerce(value, hints[key], f"{source}: [{section}] {key}")
+            # type checks only (the HLP fields carry no bounds); lists may be empty
+            changes[key] = coerce_value(value, hints[key], f"{source}: [{section}] {key}", {"min_len": 0})
         sections[section] = dataclasses.replace(getattr(base, section), **changes)
     return validate(dataclasses.replace(base, **sections), source)
 
