@@ -131,7 +131,7 @@ class _Display(TrainingView):
             + (f"teacher action MAE {fmt(m[DISTILL_MAE])}  " if DISTILL_MAE in m else "")
             + (
                 f"teacher KL {fmt(m['distill/kl'])} x {fmt(m['distill/kl_coef'])}  "
-                if "distill/kl" in m
+                if KICKSTART_KL in m
                 else ""
             )
             + f"ep len {fmt(m['episode/length'], '.1f')}  "
