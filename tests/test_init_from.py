@@ -75,6 +75,21 @@ def test_a_run_started_from_another_acts_as_it_and_counts_its_own_iterations(
     assert RunDir.open(started).checkpoints()[-1][0] == 2
 
 
+def test_init_from_std_starts_the_actions_std_there_and_keeps_the_rest(
+    toy_smooth_run: Path, tmp_path: Path
+) -> None:
+    torch.set_num_threads(1)
+    started = tmp_path / "started"
+    train_run(_config(toy_smooth_run, run={"init_from": str(toy_smooth_run), "init_from_std": 0.03}), started)
+    theirs, mine = _actor(toy_smooth_run), _actor(started)
+    assert np.abs(np.exp(mine["actor.log_std"]) - 0.03).max() < 1e-5
+    assert np.abs(np.exp(theirs["actor.log_std"]) - 0.03).min() > 0.01  # the source's std was not 0.03
+    assert max(np.abs(mine[k] - theirs[k]).max() for k in theirs if k != "actor.log_std") < 1e-4
+    with pytest.raises(AmorError, match=r"\[run\] init_from_std = 0.03 needs \[run\] init_from"):
+        train_run(_config(toy_smooth_run, run={"init_from_std": 0.03}), tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
+
+
 def test_a_source_that_does_not_fit_is_refused_before_anything_is_written(
     toy_smooth_run: Path, tmp_path: Path
 ) -> None:

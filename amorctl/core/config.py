@@ -100,6 +100,13 @@ class RunConfig:
         "normalizer a new run starts from; empty = random initialization (stored absolute, with "
         "the iteration)",
     )
+    init_from_std: float = _doc(
+        0.0,
+        "with init_from: the Gaussian actions' standard deviation the new run starts at (0 = the "
+        "source's own); a smaller one keeps fine-tuning rollouts near the policy's mean",
+        min=0,
+        max=100,
+    )
 
 
 @dataclass(frozen=True)

@@ -77,6 +77,10 @@ def lever_checks(config: TrainConfig) -> list[tuple[bool, str]]:
             "true (an imitating student's loss is the KL alone)",
         ),
         (
+            config.run.init_from_std == 0 or bool(config.run.init_from),
+            f"[run] init_from_std = {config.run.init_from_std:g} needs [run] init_from",
+        ),
+        (
             config.env.survival_bonus_scale == 1.0 or kind == "tracking",
             f"[env] survival_bonus_scale needs the tracking env (env.kind = 'tracking'; got {kind!r})",
         ),
@@ -139,6 +143,8 @@ def levers_in_use(config: TrainConfig) -> dict[str, str]:
         used["distill"] = f"[distill] teachers = {list(config.distill.teachers)!r}"
     if config.run.init_from:
         used["init_from"] = f"[run] init_from = {config.run.init_from!r}"
+        if config.run.init_from_std:
+            used["init_from"] += f", init_from_std = {config.run.init_from_std:g}"
     return used
 
 

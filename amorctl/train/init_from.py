@@ -10,7 +10,8 @@ fine-tuning a shipped policy with other settings or clips.
 Checked before anything is written: the run and checkpoint exist; the env kind and, for tracking,
 the character, objective set and action mode are the new run's; the policy takes observations and
 gives actions of the new run's sizes for the same objectives; and the new run's networks have
-exactly the source's layer shapes (``[network]``, ``[ppo] survival_channel``). The new run's config
+exactly the source's layer shapes (``[network]``, ``[ppo] survival_channel``). ``[run] init_from_std``
+(> 0) starts the actions' std there instead of at the source's. The new run's config
 stores the source as an absolute path (``pretrained:`` names as they are) with the iteration
 taken, so the record says which weights it started from; a resumed run reads its own checkpoint.
 """
@@ -33,6 +34,8 @@ from amorctl.train.rundir import RunDir
 #: Trainer checkpoint arrays a new run takes over: the networks and the observation normalizer.
 NETWORK_PREFIXES = ("actor.", "critic.", "normalizer.", "survival_critic.")
 WHERE = "[run] init_from"
+#: The actor's state-independent log std [A] (``[run] init_from_std`` replaces it).
+LOG_STD = "actor.log_std"
 
 
 def split_reference(reference: str) -> tuple[str, int | None]:
@@ -84,7 +87,21 @@ def source_networks(config: TrainConfig, env: Any) -> dict[str, np.ndarray]:
         raise AmorError(
             f"{where}: its observations, actions and objectives {theirs} differ from this run's {mine}"
         )
-    return {k: v for k, v in ckpt.trainer.arrays.items() if k.startswith(NETWORK_PREFIXES)}
+    arrays = {k: v for k, v in ckpt.trainer.arrays.items() if k.startswith(NETWORK_PREFIXES)}
+    if config.run.init_from_std > 0:
+        arrays[LOG_STD] = with_std(arrays.get(LOG_STD), config.run.init_from_std, where)
+    return arrays
+
+
+def with_std(log_std: np.ndarray | None, std: float, where: str = WHERE) -> np.ndarray:
+    """The source's state-independent log std [A] replaced by ``log(std)`` in every dimension.
+
+    Raises:
+        AmorError: the source's actor has no state-independent std (``actor.log_std``).
+    """
+    if log_std is None:
+        raise AmorError(f"{where}: [run] init_from_std needs an actor with a state-independent std")
+    return np.full(np.shape(log_std), np.log(std), dtype=np.asarray(log_std).dtype)
 
 
 def start_from(trainer: Trainer, arrays: dict[str, np.ndarray], where: str = WHERE) -> None:
