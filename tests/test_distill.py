@@ -5,6 +5,7 @@ written, and a student is not resumed with teachers that moved on."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -273,3 +274,9 @@ def test_train_command_shows_a_kickstarted_run(
     header = metrics[0].split(",")
     column = [float(row.split(",")[header.index("distill/kl_coef")]) for row in metrics[1:]]
     assert column == pytest.approx([0.5, 0.25, 0.0])
+    code = main(["train", "--config", str(tmp_path / "k.toml"), "--out", str(tmp_path / "kj"),
+                 "--iterations", "1", "--json"])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    last = json.loads(out)["metrics"]  # one JSON document, the last iteration's kickstart figures in it
+    assert last["distill/kl_coef"] == pytest.approx(0.5) and last["distill/kl"] >= 0, last
