@@ -16,6 +16,7 @@ dimension, ``0`` the deterministic policy. Every level is evaluated on the same 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,9 +24,10 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from stage import load_library
+from stage import load_library, one_line_errors
 
 from amorctl.analysis.tracking_metrics import evaluate_setting
+from amorctl.train.distill import action_log_std
 from amorctl.train.rundir import RunDir
 
 
@@ -46,8 +48,8 @@ class NoisyPolicy:
 
 
 def own_std(policy: Any) -> np.ndarray:
-    """The policy's state-independent std [A] (``exp(actor/log_std)`` of its exported arrays)."""
-    return np.exp(np.asarray(policy.export_arrays().arrays["actor/log_std"], dtype=np.float32))
+    """The policy's state-independent std [A]."""
+    return np.exp(action_log_std(policy))
 
 
 def probe(run: RunDir, levels: list[str], clips: list[str], episodes: int, seed: int) -> dict[str, Any]:
@@ -58,20 +60,27 @@ def probe(run: RunDir, levels: list[str], clips: list[str], episodes: int, seed:
     out: dict[str, Any] = {}
     for level in levels:
         std = own_std(policy) if level == "own" else np.full(policy.action_dim, float(level), np.float32)
-        acting = policy if not std.any() else NoisyPolicy(policy, std, seed)
+        if std.any():
+            acting = NoisyPolicy(policy, std, seed)
+            head = f"std {float(std.mean()):.3g}" + (" (own)" if level == "own" else "")
+        else:
+            acting, head = policy, "deterministic"
         result = evaluate_setting(
             acting, run.config, uniform, label=level, motions=clips, episodes=episodes, seed=seed
-        )
-        head = (
-            "deterministic"
-            if not std.any()
-            else f"std {float(std.mean()):.3g}" + (" (own)" if level == "own" else "")
         )
         out[head] = {
             clip: (float(m["survival_rate"]), float(m["joint_mae_deg"]))
             for clip, m in result.per_motion.items()
         }
     return out
+
+
+def _is_std(text: str) -> bool:
+    try:
+        value = float(text)
+    except ValueError:
+        return False
+    return math.isfinite(value) and value >= 0
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -90,10 +99,16 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     levels = args.std or ["0", "own"]
     for level in levels:
-        if level != "own" and not (level.replace(".", "", 1).isdigit()):
-            parser.error(f"--std {level!r}: use 'own' or a number >= 0")
+        if level != "own" and not _is_std(level):
+            parser.error(f"--std {level!r}: use 'own' or a finite number >= 0")
+    one_line_errors(report, args, levels)
+
+
+def report(args: argparse.Namespace, levels: list[str]) -> None:
+    """Probe ``args.run`` at each noise level and print the markdown table."""
     run = RunDir.open(args.run)
-    clips = args.clips or [c.name for c in load_library(run.config.env.character, run.dataset_path()).clips]
+    character = run.config.env.character
+    clips = args.clips or [c.name for c in load_library(character, run.dataset_path()).clips]
     table = probe(run, levels, clips, args.episodes, args.seed)
     heads = list(table)
     print(

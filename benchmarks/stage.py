@@ -362,6 +362,18 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
     return record
 
 
+def one_line_errors(call: Callable[..., Any], *args: Any) -> Any:
+    """``call(*args)``; an AmorError becomes one line on stderr and its exit code, as amorctl's
+    commands do (``AMORCTL_DEBUG=1``: the traceback)."""
+    try:
+        return call(*args)
+    except AmorError as err:
+        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(err.exit_code) from None
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -403,13 +415,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     if args.budget_steps < 0 or args.max_iterations < 0:
         parser.error("--budget-steps and --max-iterations must be >= 0 (0: no such limit)")
-    try:
-        record = stage(args)
-    except AmorError as err:  # one line, as amorctl's commands do (AMORCTL_DEBUG=1: the traceback)
-        if os.environ.get("AMORCTL_DEBUG", "") not in ("", "0"):
-            raise
-        print(f"error: {err}", file=sys.stderr)
-        raise SystemExit(err.exit_code) from None
+    record = one_line_errors(stage, args)
     total = record["cumulative"]
     say(
         f"stage {record['stage']}: {record['iterations']:,} iterations, {record['env_steps']:,} env steps in "

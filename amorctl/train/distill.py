@@ -127,7 +127,7 @@ def load_teachers(config: TrainConfig, env: Any, library: MotionLibrary) -> Clip
             if clip_teacher[index] < 0 and name in held:
                 clip_teacher[index] = k
         policies.append(policy)
-        log_stds.append(np.asarray(policy.export_arrays().arrays["actor/log_std"], dtype=np.float32))
+        log_stds.append(action_log_std(policy))
         labels.append(run.label)
         checkpoints.append(ckpt.path.name)
     missing = [name for name, k in zip(student_clips, clip_teacher, strict=True) if k < 0]
@@ -137,6 +137,11 @@ def load_teachers(config: TrainConfig, env: Any, library: MotionLibrary) -> Clip
             "dataset; add a run trained on them, or train the student on the taught clips only (--clips)"
         )
     return ClipTeachers(tuple(policies), tuple(log_stds), clip_teacher, tuple(labels), tuple(checkpoints))
+
+
+def action_log_std(policy: Policy) -> np.ndarray:
+    """The policy's state-independent log std of its Gaussian actions [A] (``actor/log_std``)."""
+    return np.asarray(policy.export_arrays().arrays["actor/log_std"], dtype=np.float32)
 
 
 def student_library(config: TrainConfig) -> MotionLibrary:
