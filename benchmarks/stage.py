@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomllib
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from science_args import config_setting
@@ -262,6 +263,25 @@ def write_figure(fig: Any, path: Path | str) -> None:
     plt.close(fig)
 
 
+def taught_by(entry: Path) -> list[str]:
+    """The other entries of ``entry``'s shelf that list it among their ``[distill] teachers`` (by its
+    path, or as ``pretrained:NAME`` where the shelf is the package's): a newer checkpoint of
+    ``entry`` would stop them from resuming (docs/distill.md)."""
+    shelf = entry.parent.resolve()
+    refs = {str(entry.resolve())}
+    if shelf == pretrained.package_folder().resolve():
+        refs.add(f"{pretrained.PREFIX}{entry.name}")
+    students = []
+    for other in sorted(shelf.iterdir()):
+        config = other / "config.toml"
+        if other.name == entry.name or not config.is_file():
+            continue
+        teachers = tomllib.loads(config.read_text()).get("distill", {}).get("teachers", [])
+        if refs & {str(teacher) for teacher in teachers}:
+            students.append(other.name)
+    return students
+
+
 def stage(args: argparse.Namespace) -> dict[str, Any]:
     """Run one stage; returns its card record."""
     if not pretrained.NAME_RE.match(args.run):
@@ -280,6 +300,13 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
             raise AmorError(
                 f"{entry} exists: a later stage continues with the run's own config "
                 "(--preset, --config, --character, --dataset, --clips and --set only start a run)"
+            )
+        students = taught_by(entry)
+        if students:
+            raise AmorError(
+                f"{entry}: {', '.join(students)} in the same shelf learned from this run ([distill] "
+                "teachers), and a newer checkpoint here would stop them from resuming; train it further "
+                f"in a copy (cp -r {entry} DIR/ and add --shelf DIR)"
             )
         stages = list(card.get("stages") or [])
         config = work_copy(entry, work)

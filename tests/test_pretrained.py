@@ -241,15 +241,19 @@ def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None
 
 
 def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatch, capsys) -> None:
-    """humanoid36's repertoire entry (a run in stages), re-measured short: 2 episodes of 10 s per
-    clip under uniform weights give the survival its last stage recorded (``walk`` falls, ``crawl``
-    survives), near the joint MAE recorded there (8 episodes per clip)."""
+    """humanoid36's repertoire entry (the base run kickstarted by ``humanoid36-walk``), re-measured
+    short: 2 episodes of 10 s per clip under uniform weights walk and turn (the base run fell on
+    both) and crawl, near the joint MAE its last stage recorded (8 episodes per clip)."""
     monkeypatch.chdir(tmp_path)
-    card = pretrained.read_card(pretrained.package_folder() / "humanoid36-repertoire")
+    folder = pretrained.package_folder()
+    card = pretrained.read_card(folder / "humanoid36-repertoire")
     last = card["stages"][-1]["evaluation_clips"]
     assert card["resumable"] and card["character"] == "humanoid36" and len(card["motions"]) == 20
-    assert "ppo.entropy_coef=0" in card["stages"][0]["command"]
-    for clip, survival in (("walk", 0.0), ("crawl", 1.0)):
+    command = card["stages"][0]["command"]
+    assert '"pretrained:humanoid36-walk", "pretrained:humanoid36-repertoire-base"' in command
+    base = pretrained.read_card(folder / "humanoid36-repertoire-base")
+    assert base["stages"][-1]["evaluation_clips"]["walk"]["survival"] == 0.0 and len(base["stages"]) == 2
+    for clip in ("walk", "walker/turn_left0", "crawl"):
         metrics = _evaluate_short(capsys, "pretrained:humanoid36-repertoire", clip)
-        assert metrics["survival_rate"] == last[clip]["survival"] == survival, (clip, metrics)
+        assert last[clip]["survival"] == 1.0 and metrics["survival_rate"] == 1.0, (clip, metrics)
         assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 3.0, (clip, metrics)

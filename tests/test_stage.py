@@ -143,6 +143,32 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     assert "not a resumable entry" in capsys.readouterr().err
 
 
+def test_a_stage_refuses_to_move_a_teacher_of_another_entry(tmp_path: Path, capsys, monkeypatch) -> None:
+    """An entry that another entry of its shelf was kickstarted by stays the checkpoint that taught:
+    a stage of it is refused before anything is written (by path, or by pretrained:NAME in the
+    package's own shelf), and a copy in another shelf trains on."""
+    config = tiny_config(tmp_path)
+    (tmp_path / "tiny.toml").write_text(to_toml(config))
+    run_stage(tmp_path, "--config", str(tmp_path / "tiny.toml"))
+    shelf, work = tmp_path / "shelf", tmp_path / "work"
+    student = shelf / "student"
+    student.mkdir()
+    for teacher in (str((shelf / "tiny").resolve()), "pretrained:tiny"):
+        (student / "config.toml").write_text(f'[distill]\nteachers = ["{teacher}"]\n')
+        monkeypatch.setattr(stage_script.pretrained, "package_folder", lambda: shelf)
+        before = (shelf / "tiny" / "card.json").read_text()
+        stamp = sorted(p.name for p in (work / "tiny" / "checkpoints").iterdir())
+        with pytest.raises(SystemExit):
+            run_stage(tmp_path)
+        err = capsys.readouterr().err
+        assert "student in the same shelf learned from this run" in err and "Traceback" not in err, err
+        assert (shelf / "tiny" / "card.json").read_text() == before
+        assert sorted(p.name for p in (work / "tiny" / "checkpoints").iterdir()) == stamp
+    (student / "config.toml").write_text('[distill]\nteachers = ["pretrained:other"]\n')
+    run_stage(tmp_path)
+    assert "stage 2: 2 iterations" in capsys.readouterr().out
+
+
 def test_lever_rows_tabulates_runs_and_clips() -> None:
     def fake(label: str, walk: float, jump: float) -> dict:
         clips = {
