@@ -107,7 +107,8 @@ def _pretrained_block(reference: str, card: dict[str, Any]) -> str:
     """Three lines on a pretrained entry: what it was trained on and for how long, its headline
     figures, and how it was made."""
     motions = card.get("motions") or []
-    clips = f"{len(motions)} clips ({_families(motions)})" if motions else "clips not recorded"
+    noun = "clip" if len(motions) == 1 else "clips"
+    clips = f"{len(motions)} {noun} ({_families(motions)})" if motions else "clips not recorded"
     stages = len(card.get("stages") or []) if card.get("resumable") else 0
     in_stages = f" in {stages} stage{'s' if stages != 1 else ''}" if stages else ""
     commit = (card.get("commit") or "an unrecorded commit")[:12]
