@@ -241,41 +241,52 @@ def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None
 
 
 def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatch, capsys) -> None:
-    """humanoid36's repertoire entry (kickstarted by ``humanoid36-run``, ``humanoid36-walk`` and the
-    base run), re-measured short: 2 episodes of 10 s per clip under uniform weights run, walk and
-    turn (the base run fell on all three) and crawl, near the joint MAE its last stage recorded
-    (8 episodes per clip). ``run`` survived 6 of 8 there and 15 of 16 in the docs, so one of its
-    two episodes here must survive, as biped20's ``jump`` must."""
+    """humanoid36's repertoire entry (kickstarted by ``humanoid36-jump``, ``humanoid36-run``,
+    ``humanoid36-walk`` and the base run), re-measured short: 2 episodes of 10 s per clip under
+    uniform weights jump, run, walk and turn (the base run fell on all four) and crawl, near the
+    joint MAE its last stage recorded (8 episodes per clip). ``run`` survived 6 of 8 there and 15
+    of 16 in the docs, so one of its two episodes here must survive, as biped20's ``jump`` must."""
     monkeypatch.chdir(tmp_path)
     folder = pretrained.package_folder()
     card = pretrained.read_card(folder / "humanoid36-repertoire")
     last = card["stages"][-1]["evaluation_clips"]
     assert card["resumable"] and card["character"] == "humanoid36" and len(card["motions"]) == 20
     command = card["stages"][0]["command"]
-    teachers = ("humanoid36-run", "humanoid36-walk", "humanoid36-repertoire-base")
+    teachers = ("humanoid36-jump", "humanoid36-run", "humanoid36-walk", "humanoid36-repertoire-base")
     assert ", ".join(f'"pretrained:{name}"' for name in teachers) in command
     base = pretrained.read_card(folder / "humanoid36-repertoire-base")
     base_last = base["stages"][-1]["evaluation_clips"]
-    assert base_last["walk"]["survival"] == 0.0 and base_last["run"]["survival"] == 0.0
-    for clip, survival in (("run", 0.5), ("walk", 1.0), ("walker/turn_left0", 1.0), ("crawl", 1.0)):
+    assert all(base_last[clip]["survival"] == 0.0 for clip in ("walk", "run", "jump"))
+    for clip, survival in (
+        ("jump", 1.0),
+        ("run", 0.5),
+        ("walk", 1.0),
+        ("walker/turn_left0", 1.0),
+        ("crawl", 1.0),
+    ):
         metrics = _evaluate_short(capsys, "pretrained:humanoid36-repertoire", clip)
         assert last[clip]["survival"] >= 0.75 and metrics["survival_rate"] >= survival, (clip, metrics)
         assert abs(metrics["joint_mae_deg"] - last[clip]["joint_mae_deg"]) < 3.0, (clip, metrics)
     assert metrics["joint_mae_deg"] > 15.0  # crawl is kept up, not tracked closely
 
 
-def test_the_shipped_humanoid36_run_teacher_runs(tmp_path, monkeypatch, capsys) -> None:
-    """The one-clip teacher of ``run``, re-measured short: 2 episodes of 10 s survive within 10°
-    joint MAE, near its last stage's figure; it started from the walking entry's networks."""
+@pytest.mark.parametrize("clip", ["run", "jump"])
+def test_the_shipped_humanoid36_one_clip_teachers_track_their_clip(
+    clip: str, tmp_path, monkeypatch, capsys
+) -> None:
+    """The one-clip teachers (``humanoid36-run``, ``humanoid36-jump``), re-measured short: 2 episodes
+    of 10 s survive within 10° joint MAE, near the last stage's figure; each started from the
+    walking entry's networks and trained 9.2 M env steps."""
     monkeypatch.chdir(tmp_path)
-    card = pretrained.read_card(pretrained.package_folder() / "humanoid36-run")
-    last = card["stages"][-1]["evaluation_clips"]["run"]
-    assert card["motions"] == ["run"] and card["init_from"].startswith("pretrained:humanoid36-walk@")
+    name = f"humanoid36-{clip}"
+    card = pretrained.read_card(pretrained.package_folder() / name)
+    last = card["stages"][-1]["evaluation_clips"][clip]
+    assert card["motions"] == [clip] and card["init_from"].startswith("pretrained:humanoid36-walk@")
     assert card["resumable"] and len(card["stages"]) == 2 and last["survival"] == 1.0
     from amorctl.cli.runs import _pretrained_block
 
-    block = _pretrained_block("pretrained:humanoid36-run", card)
-    assert "humanoid36 · 1 clip (run) · 9.2 M env steps" in block
-    metrics = _evaluate_short(capsys, "pretrained:humanoid36-run", "run")
+    block = _pretrained_block(f"pretrained:{name}", card)
+    assert f"humanoid36 · 1 clip ({clip}) · 9.2 M env steps" in block
+    metrics = _evaluate_short(capsys, f"pretrained:{name}", clip)
     assert metrics["survival_rate"] == 1.0 and metrics["joint_mae_deg"] <= 10.0, metrics
     assert abs(metrics["joint_mae_deg"] - last["joint_mae_deg"]) < 2.0, metrics
