@@ -290,3 +290,35 @@ def test_the_shipped_humanoid36_one_clip_teachers_track_their_clip(
     metrics = _evaluate_short(capsys, f"pretrained:{name}", clip)
     assert metrics["survival_rate"] == 1.0 and metrics["joint_mae_deg"] <= 10.0, metrics
     assert abs(metrics["joint_mae_deg"] - last["joint_mae_deg"]) < 2.0, metrics
+
+
+def test_a_teacher_entry_is_stripped_without_the_encoder_and_still_teaches(tmp_path, capsys) -> None:
+    """``runs export-pretrained --teacher`` of the shipped jump teacher: a fifth of the size, no
+    motion encoder, the same clip data (a student's check holds it), the same policy, the stages
+    of the entry it came from; ``--resumable`` with it is refused before anything is written."""
+    from amorctl.motion.dataset import load_dataset, load_encoder_bytes
+    from amorctl.train.distill import _clips_held
+
+    source = pretrained.package_folder() / "humanoid36-jump"
+    code, out, err = run_cli(
+        capsys, "runs", "export-pretrained", str(source), "--name", "jump-teacher", "--out", str(tmp_path),
+        "--teacher", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    entry = tmp_path / "jump-teacher"
+    size, full = json.loads(out)["bytes"], sum(p.stat().st_size for p in source.rglob("*") if p.is_file())
+    assert size < 0.25 * full and size < 2.5e6, (size, full)
+    assert load_encoder_bytes(source / "dataset.mcap") is not None
+    assert load_encoder_bytes(entry / "dataset.mcap") is None
+    card = pretrained.read_card(entry)
+    assert not card["resumable"] and len(card["stages"]) == 2 and card["motions"] == ["jump"]
+    student = load_dataset(pretrained.package_folder() / "humanoid36-repertoire" / "dataset.mcap")
+    assert _clips_held(student, load_dataset(entry / "dataset.mcap"), "test") == {"jump"}
+    a, b = RunDir(entry).policy(), RunDir(source).policy()
+    obs = np.random.default_rng(0).normal(size=(4, a.obs_dim)).astype(np.float32)
+    np.testing.assert_array_equal(a(obs), b(obs))
+    code, _out, err = run_cli(
+        capsys, "runs", "export-pretrained", str(source), "--name", "again", "--out", str(tmp_path),
+        "--teacher", "--resumable",
+    )  # fmt: skip
+    assert code != 0 and "--teacher and --resumable" in err and not (tmp_path / "again").exists()

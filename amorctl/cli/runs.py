@@ -204,6 +204,14 @@ def export_pretrained_cmd(
             "trained further with benchmarks/stage.py (about 4x the size).",
         ),
     ] = False,
+    teacher: Annotated[
+        bool,
+        typer.Option(
+            "--teacher",
+            help="An entry only read as a kickstarting teacher ([distill] teachers): stripped, and "
+            "its dataset without the motion encoder (about a fifth of the size).",
+        ),
+    ] = False,
     json_out: JsonFlag = False,
 ) -> None:
     """Write OUT/NAME: one checkpoint (without optimizer state unless --resumable), config, dataset,
@@ -222,6 +230,7 @@ def export_pretrained_cmd(
         commit=commit,
         replace=replace,
         resumable=resumable,
+        teacher=teacher,
     )
     size = sum(p.stat().st_size for p in entry.path.rglob("*") if p.is_file())
     if json_out:
