@@ -216,8 +216,8 @@ def export_pretrained(
     kept = ckpt.trainer if resumable else strip_trainer_state(ckpt.trainer)
     kept_env = ckpt.env if resumable else None
     meta = {k: v for k, v in ckpt.meta.items() if k != "iteration"}
-    if not stages and (Path(run_path) / pretrained.CARD_FILE).is_file():
-        stages = pretrained.read_card(Path(run_path)).get("stages") or []
+    if not stages and (run.path / pretrained.CARD_FILE).is_file():  # an entry, by folder or name
+        stages = pretrained.read_card(run.path).get("stages") or []
 
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=out))
