@@ -294,7 +294,9 @@ def stage(args: argparse.Namespace) -> dict[str, Any]:
         description = description or card.get("description", "")
         if not card.get("resumable"):
             raise AmorError(
-                f"{entry}: not a resumable entry (export it with `runs export-pretrained --resumable`)"
+                f"{entry}: not a resumable entry (its optimizer state was not kept): start a new run"
+                f" from its networks (--set 'run.init_from=\"{entry}\"'), or export the run it came"
+                " from with `runs export-pretrained --resumable`"
             )
         if args.preset or args.config or args.set or args.character or args.dataset or args.clips:
             raise AmorError(

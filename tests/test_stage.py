@@ -140,7 +140,8 @@ def test_a_later_stage_refuses_new_settings_and_a_plain_entry(tmp_path: Path, ca
     card_path.write_text(json.dumps({**card, "resumable": False}))
     with pytest.raises(SystemExit):
         run_stage(tmp_path)
-    assert "not a resumable entry" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "not a resumable entry" in err and "run.init_from=" in err and "shelf/tiny" in err
 
 
 def test_a_stage_refuses_to_move_a_teacher_of_another_entry(tmp_path: Path, capsys, monkeypatch) -> None:

@@ -109,7 +109,7 @@ def _pretrained_block(reference: str, card: dict[str, Any]) -> str:
     motions = card.get("motions") or []
     noun = "clip" if len(motions) == 1 else "clips"
     clips = f"{len(motions)} {noun} ({_families(motions)})" if motions else "clips not recorded"
-    stages = len(card.get("stages") or []) if card.get("resumable") else 0
+    stages = len(card.get("stages") or [])
     in_stages = f" in {stages} stage{'s' if stages != 1 else ''}" if stages else ""
     commit = (card.get("commit") or "an unrecorded commit")[:12]
     started = f" · started from {Path(card['init_from']).name}" if card.get("init_from") else ""

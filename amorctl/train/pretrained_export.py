@@ -175,7 +175,8 @@ def export_pretrained(
         run_path: the run directory (or another ``pretrained:`` entry).
         name: the entry's name (``pretrained:<name>``): lowercase letters, digits, ``.``, ``_``, ``-``.
         out: the folder that receives ``<name>/`` (``amorctl/pretrained`` to ship it in the package).
-        command: the command that trained the run (recorded in the card).
+        command: the command that trained the run (recorded in the card); empty and ``run_path``
+            an entry: that entry's command (as ``commit`` None: its commit).
         description: one line on what the policy does.
         notes: free text for the card (e.g. measured figures).
         figures: image files copied into ``figures/`` and listed in the card.
@@ -216,8 +217,11 @@ def export_pretrained(
     kept = ckpt.trainer if resumable else strip_trainer_state(ckpt.trainer)
     kept_env = ckpt.env if resumable else None
     meta = {k: v for k, v in ckpt.meta.items() if k != "iteration"}
-    if not stages and (run.path / pretrained.CARD_FILE).is_file():  # an entry, by folder or name
-        stages = pretrained.read_card(run.path).get("stages") or []
+    if (run.path / pretrained.CARD_FILE).is_file():  # an entry, by folder or name: keep its record
+        source_card = pretrained.read_card(run.path)
+        stages = stages or source_card.get("stages") or []
+        command = command or source_card.get("command") or ""
+        commit = source_card.get("commit") if commit is None else commit
 
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=out))
