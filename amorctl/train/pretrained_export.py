@@ -176,11 +176,12 @@ def export_pretrained(
         name: the entry's name (``pretrained:<name>``): lowercase letters, digits, ``.``, ``_``, ``-``.
         out: the folder that receives ``<name>/`` (``amorctl/pretrained`` to ship it in the package).
         command: the command that trained the run (recorded in the card); empty and ``run_path``
-            an entry: that entry's command (as ``commit`` None: its commit).
+            an entry: that entry's command.
         description: one line on what the policy does.
         notes: free text for the card (e.g. measured figures).
         figures: image files copied into ``figures/`` and listed in the card.
-        commit: the code version that trained it; None: ``git rev-parse HEAD`` of the current directory.
+        commit: the code version that trained it; None: an entry's own commit, else
+            ``git rev-parse HEAD`` of the current directory.
         replace: replace an existing entry of that name in ``out``.
         resumable: keep the checkpoint's whole training state (optimizer, RNG, rollout and env
             state), so that the entry can be trained further (``benchmarks/stage.py``), at about
