@@ -226,12 +226,15 @@ def test_the_shipped_humanoid36_walk_walks_as_its_card_says(tmp_path, monkeypatc
 
 
 def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None:
-    from amorctl.cli.runs import _headline
+    from amorctl.cli.runs import _families, _headline
 
     clip = {"walk": (1.0, 8.0), "walker/turn_left0": (0.9, 10.0), "backflip": (0.0, 30.0), "run": (0.5, 12.0)}
     stage = {"evaluation_clips": {k: {"survival": s, "joint_mae_deg": m} for k, (s, m) in clip.items()}}
     line = _headline({"stages": [{"evaluation_clips": {}}, stage]})
-    assert line == "2/4 clips ≥ 90% survival (walk, walker); mean survival 60%, joint MAE 15.0° (uniform w)"
+    assert line == (
+        "2/4 clips ≥ 90% survival (walk, walker/turn_left0); mean survival 60%, joint MAE 15.0° (uniform w)"
+    )
+    assert _families(["dance_a"]) == "dance_a" and _families(["dance_a", "dance_b", "walk"]) == "dance, walk"
     family = {
         "walk": {"survival": 1.0, "joint_mae_deg": 9.0},
         "run": {"survival": 0.0, "joint_mae_deg": 21.0},
@@ -241,12 +244,12 @@ def test_runs_list_headline_counts_the_tracked_clips_of_the_last_stage() -> None
 
 
 def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatch, capsys) -> None:
-    """humanoid36's repertoire entry (kickstarted by the kick, punch, jump, run and walking
-    teachers and the base run), re-measured short: 2 episodes of 10 s per clip under uniform
-    weights jump, run, punch, walk and turn (the base run fell on all five) and crawl, near the
-    joint MAE its last stage recorded (8 episodes per clip). ``punch`` survived 15 of 16 episodes
-    in the docs, so one of its two episodes here must survive, as ``run`` and biped20's ``jump``
-    must."""
+    """humanoid36's repertoire entry (kickstarted by the dance_a, kick, punch, jump, run and
+    walking teachers and the base run), re-measured short: 2 episodes of 10 s per clip under
+    uniform weights jump, run, punch, kick, dance_a, walk and turn (the base run fell on all
+    seven) and crawl, near the joint MAE its last stage recorded (8 episodes per clip). ``run``,
+    ``kick`` and ``dance_a`` survived 15, 13 and 13 of 16 episodes in the docs, so one of their
+    two episodes here must survive, as biped20's ``jump`` must."""
     monkeypatch.chdir(tmp_path)
     folder = pretrained.package_folder()
     card = pretrained.read_card(folder / "humanoid36-repertoire")
@@ -254,6 +257,7 @@ def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatc
     assert card["resumable"] and card["character"] == "humanoid36" and len(card["motions"]) == 20
     command = card["stages"][0]["command"]
     teachers = (
+        "humanoid36-dance_a",
         "humanoid36-kick",
         "humanoid36-punch",
         "humanoid36-jump",
@@ -264,11 +268,15 @@ def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatc
     assert ", ".join(f'"pretrained:{name}"' for name in teachers) in command
     base = pretrained.read_card(folder / "humanoid36-repertoire-base")
     base_last = base["stages"][-1]["evaluation_clips"]
-    assert all(base_last[clip]["survival"] == 0.0 for clip in ("walk", "run", "jump", "punch"))
+    assert all(
+        base_last[clip]["survival"] == 0.0 for clip in ("walk", "run", "jump", "punch", "kick", "dance_a")
+    )
     for clip, survival in (
         ("jump", 1.0),
         ("run", 0.5),
-        ("punch", 0.5),
+        ("punch", 1.0),
+        ("kick", 0.5),
+        ("dance_a", 0.5),
         ("walk", 1.0),
         ("walker/turn_left0", 1.0),
         ("crawl", 1.0),
@@ -280,34 +288,43 @@ def test_the_shipped_humanoid36_repertoire_matches_its_card(tmp_path, monkeypatc
 
 
 @pytest.mark.parametrize(
-    ("clip", "env_steps", "resumable", "mae_at_most"),
+    ("clip", "env_steps", "resumable", "mae_at_most", "survival"),
     [
-        ("run", "9.2", True, 10.0),
-        ("jump", "9.2", True, 10.0),
-        ("kick", "11.0", False, 15.5),
-        ("punch", "7.3", False, 13.5),
+        ("run", "9.2", True, 10.0, 1.0),
+        ("jump", "9.2", True, 10.0, 1.0),
+        ("kick", "11.0", False, 15.5, 1.0),
+        ("punch", "7.3", False, 13.5, 1.0),
+        ("dance_a", "11.5", False, 19.0, 0.5),
     ],
 )
 def test_the_shipped_humanoid36_one_clip_teachers_track_their_clip(
-    clip: str, env_steps: str, resumable: bool, mae_at_most: float, tmp_path, monkeypatch, capsys
+    clip: str,
+    env_steps: str,
+    resumable: bool,
+    mae_at_most: float,
+    survival: float,
+    tmp_path,
+    monkeypatch,
+    capsys,
 ) -> None:
-    """The one-clip teachers (``humanoid36-run``, ``-jump``, ``-kick``, ``-punch``), re-measured
-    short: 2 episodes of 10 s survive, near the last stage's joint MAE (within 10° for run and jump;
-    kick's 14.3° and punch's 12.0° of 16 episodes miss that target); each started from the walking
-    entry's networks and trained in two stages. ``kick`` and ``punch`` ship as teachers only
-    (``--teacher``: not resumable)."""
+    """The one-clip teachers (``humanoid36-run``, ``-jump``, ``-kick``, ``-punch``, ``-dance_a``),
+    re-measured short: 2 episodes of 10 s survive (one of two for dance_a, whose teacher survives
+    15 of 16), near the last stage's joint MAE (within 10° for run and jump; kick's 14.3°, punch's
+    12.0° and dance_a's 17.0° miss that target); each started from the walking entry's networks
+    and trained in two stages. ``kick``, ``punch`` and
+    ``dance_a`` ship as teachers only (``--teacher``: not resumable)."""
     monkeypatch.chdir(tmp_path)
     name = f"humanoid36-{clip}"
     card = pretrained.read_card(pretrained.package_folder() / name)
     last = card["stages"][-1]["evaluation_clips"][clip]
     assert card["motions"] == [clip] and card["init_from"].startswith("pretrained:humanoid36-walk@")
-    assert card["resumable"] is resumable and len(card["stages"]) == 2 and last["survival"] == 1.0
+    assert card["resumable"] is resumable and len(card["stages"]) == 2 and last["survival"] >= 0.875
     from amorctl.cli.runs import _pretrained_block
 
     block = _pretrained_block(f"pretrained:{name}", card)
     assert f"humanoid36 · 1 clip ({clip}) · {env_steps} M env steps in 2 stages" in block
     metrics = _evaluate_short(capsys, f"pretrained:{name}", clip)
-    assert metrics["survival_rate"] == 1.0 and metrics["joint_mae_deg"] <= mae_at_most, metrics
+    assert metrics["survival_rate"] >= survival and metrics["joint_mae_deg"] <= mae_at_most, metrics
     assert abs(metrics["joint_mae_deg"] - last["joint_mae_deg"]) < 2.0, metrics
 
 

@@ -68,10 +68,14 @@ def local_runs(folder: Path) -> list[dict[str, Any]]:
 
 
 def _families(motions: list[str]) -> str:
-    """``walk, walker, run`` from clip names (their families, in order)."""
+    """``walk, walker, run`` from clip names: their families, in order, a family of one clip named
+    by that clip (``dance_a`` alone, not ``dance``)."""
     from amorctl.train.episode_stats import clip_family
 
-    return ", ".join(dict.fromkeys(clip_family(m) for m in motions))
+    members: dict[str, list[str]] = {}
+    for motion in motions:
+        members.setdefault(clip_family(motion), []).append(motion)
+    return ", ".join(clips[0] if len(clips) == 1 else family for family, clips in members.items())
 
 
 #: A clip counts as tracked when this share of its evaluation episodes survive (the repertoire
