@@ -311,8 +311,8 @@ def test_the_shipped_humanoid36_one_clip_teachers_track_their_clip(
     re-measured short: 2 episodes of 10 s survive (one of two for dance_a, whose teacher survives
     15 of 16), near the last stage's joint MAE (within 10° for run and jump; kick's 14.3°, punch's
     12.0° and dance_a's 17.0° miss that target); each started from the walking entry's networks
-    and trained in two stages. ``kick``, ``punch`` and
-    ``dance_a`` ship as teachers only (``--teacher``: not resumable)."""
+    and trained in two stages. ``kick``, ``punch`` and ``dance_a`` ship as teachers only
+    (``--teacher``: not resumable)."""
     monkeypatch.chdir(tmp_path)
     name = f"humanoid36-{clip}"
     card = pretrained.read_card(pretrained.package_folder() / name)
